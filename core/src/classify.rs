@@ -1,0 +1,482 @@
+//! Classification: transfer functions, their lookup tables, gradients, and the voxel
+//! record the renderer consumes.
+//!
+//! Transfer functions are piecewise linear over the scalar value. They are compiled once
+//! into tables so that classifying a voxel is a lookup (Lacroute 1995, §2.2): opacity is
+//! indexed by the raw scalar (256 entries for `u8` data, 65536 for `u16`), colour by the
+//! scalar quantised to 8 bits, which every voxel record carries. Because the colour table
+//! is applied per frame, colours can change without re-encoding the volume; opacity is
+//! baked into the run-length encoding because it decides which voxels are transparent.
+
+use crate::error::{need, Error};
+use crate::fixed::{self, ONE};
+use crate::normal;
+
+/// One classified voxel: 4 bytes, the unit the run-length encoding stores.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Voxel {
+    /// Opacity per unit of the smallest voxel spacing, 0..=255 ↦ 0..=1, before opacity
+    /// correction for the viewing direction.
+    pub opacity: u8,
+    /// Scalar value quantised to 8 bits over the data range; indexes the colour table.
+    pub scalar: u8,
+    /// Encoded normal ([`crate::normal`]).
+    pub normal: u16,
+}
+
+/// Scalar data of a volume: 8- or 16-bit voxels, x fastest, then y, then z.
+#[derive(Clone, Copy, Debug)]
+pub enum Scalars<'a> {
+    /// 8-bit voxels; the quantised scalar is the value itself.
+    U8(&'a [u8]),
+    /// 16-bit voxels; quantised linearly over `[min, max]` of the volume.
+    U16(&'a [u16]),
+}
+
+impl Scalars<'_> {
+    /// Number of voxels.
+    pub fn len(&self) -> usize {
+        match self {
+            Scalars::U8(d) => d.len(),
+            Scalars::U16(d) => d.len(),
+        }
+    }
+    /// True if there are no voxels.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Number of distinct raw values, which is the opacity table length.
+    pub fn value_count(&self) -> usize {
+        match self {
+            Scalars::U8(_) => 256,
+            Scalars::U16(_) => 65536,
+        }
+    }
+    /// Minimum and maximum raw value (`(0, 255)` for u8 data, which is quantised as is).
+    pub fn range(&self) -> (u16, u16) {
+        match self {
+            Scalars::U8(_) => (0, 255),
+            Scalars::U16(d) => {
+                let mut lo = u16::MAX;
+                let mut hi = 0;
+                for &v in d.iter() {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+                if lo > hi {
+                    (0, 0)
+                } else {
+                    (lo, hi)
+                }
+            }
+        }
+    }
+    #[inline(always)]
+    fn at(&self, i: usize) -> i32 {
+        match self {
+            Scalars::U8(d) => d[i] as i32,
+            Scalars::U16(d) => d[i] as i32,
+        }
+    }
+}
+
+/// Largest accepted volume side; keeps every index product inside `u32`.
+pub const MAX_DIM: usize = 4096;
+/// Largest accepted voxel count.
+pub const MAX_VOXELS: usize = 1 << 30;
+
+/// Grid geometry of a volume: dimensions and physical voxel spacing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grid {
+    /// Voxels along x, y, z.
+    pub dims: [usize; 3],
+    /// Voxel spacing along x, y, z (any unit, typically mm).
+    pub spacing: [f64; 3],
+}
+
+impl Grid {
+    /// Validates dimensions and spacing.
+    pub fn new(dims: [usize; 3], spacing: [f64; 3]) -> Result<Self, Error> {
+        if dims.contains(&0) {
+            return Err(Error::BadDimensions {
+                reason: "a dimension is zero",
+            });
+        }
+        if dims.iter().any(|&d| d > MAX_DIM) {
+            return Err(Error::BadDimensions {
+                reason: "a dimension exceeds 4096",
+            });
+        }
+        if dims[0] * dims[1] * dims[2] > MAX_VOXELS {
+            return Err(Error::BadDimensions {
+                reason: "more than 2^30 voxels",
+            });
+        }
+        if spacing.iter().any(|s| !s.is_finite() || *s <= 0.0 || *s > 1e6) {
+            return Err(Error::BadSpacing);
+        }
+        Ok(Grid { dims, spacing })
+    }
+    /// Total voxel count.
+    pub fn voxel_count(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+    /// Smallest spacing: the unit opacities are expressed in.
+    pub fn min_spacing(&self) -> f64 {
+        self.spacing[0].min(self.spacing[1]).min(self.spacing[2])
+    }
+    /// Physical diagonal length of the volume.
+    pub fn diagonal(&self) -> f64 {
+        let e = [
+            self.dims[0] as f64 * self.spacing[0],
+            self.dims[1] as f64 * self.spacing[1],
+            self.dims[2] as f64 * self.spacing[2],
+        ];
+        libm::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    }
+}
+
+/// Checks the breakpoints of a piecewise-linear function: at least one, finite, strictly
+/// increasing positions.
+fn check_positions(xs: impl Iterator<Item = f64>) -> Result<(), Error> {
+    let mut prev = f64::NEG_INFINITY;
+    let mut n = 0;
+    for x in xs {
+        if !x.is_finite() {
+            return Err(Error::BadTransferFunction {
+                reason: "a breakpoint value is not finite",
+            });
+        }
+        if x <= prev {
+            return Err(Error::BadTransferFunction {
+                reason: "breakpoint values are not strictly increasing",
+            });
+        }
+        prev = x;
+        n += 1;
+    }
+    if n == 0 {
+        return Err(Error::BadTransferFunction {
+            reason: "no breakpoints",
+        });
+    }
+    Ok(())
+}
+
+/// Evaluates a piecewise-linear function given as sorted `(x, y)` breakpoints; constant
+/// beyond the end points.
+fn eval<const N: usize>(points: &[(f64, [f64; N])], x: f64) -> [f64; N] {
+    let first = points[0];
+    if x <= first.0 {
+        return first.1;
+    }
+    for w in points.windows(2) {
+        let (x0, y0) = w[0];
+        let (x1, y1) = w[1];
+        if x <= x1 {
+            let t = (x - x0) / (x1 - x0);
+            let mut out = [0.0; N];
+            for c in 0..N {
+                out[c] = y0[c] + t * (y1[c] - y0[c]);
+            }
+            return out;
+        }
+    }
+    points[points.len() - 1].1
+}
+
+/// Piecewise-linear opacity transfer function: `(scalar value, opacity per unit of the
+/// smallest spacing)` breakpoints.
+#[derive(Clone, Copy, Debug)]
+pub struct OpacityTf<'a> {
+    points: &'a [(f64, [f64; 1])],
+}
+
+impl<'a> OpacityTf<'a> {
+    /// Validates breakpoints: strictly increasing finite values, opacities in `[0, 1]`.
+    pub fn new(points: &'a [(f64, [f64; 1])]) -> Result<Self, Error> {
+        check_positions(points.iter().map(|p| p.0))?;
+        if points
+            .iter()
+            .any(|p| !(p.1[0].is_finite() && (0.0..=1.0).contains(&p.1[0])))
+        {
+            return Err(Error::BadTransferFunction {
+                reason: "an opacity is outside 0..1",
+            });
+        }
+        Ok(OpacityTf { points })
+    }
+
+    /// Fills `table[v]` with the 8-bit opacity of raw value `v`. `table` must hold
+    /// [`Scalars::value_count`] entries for the data it will classify.
+    pub fn build_table(&self, table: &mut [u8]) {
+        for (v, out) in table.iter_mut().enumerate() {
+            let a = eval(self.points, v as f64)[0];
+            *out = (a.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+        }
+    }
+}
+
+/// Piecewise-linear colour transfer function: `(scalar value, [r, g, b] in 0..1)`.
+#[derive(Clone, Copy, Debug)]
+pub struct ColorTf<'a> {
+    points: &'a [(f64, [f64; 3])],
+}
+
+/// Colour lookup table indexed by the 8-bit quantised scalar, Q15 RGB.
+pub type ColorTable = [[u16; 3]; 256];
+
+impl<'a> ColorTf<'a> {
+    /// Validates breakpoints: strictly increasing finite values, channels in `[0, 1]`.
+    pub fn new(points: &'a [(f64, [f64; 3])]) -> Result<Self, Error> {
+        check_positions(points.iter().map(|p| p.0))?;
+        if points
+            .iter()
+            .any(|p| p.1.iter().any(|c| !(c.is_finite() && (0.0..=1.0).contains(c))))
+        {
+            return Err(Error::BadTransferFunction {
+                reason: "a colour channel is outside 0..1",
+            });
+        }
+        Ok(ColorTf { points })
+    }
+
+    /// Builds the table for data whose raw range `(lo, hi)` was quantised to 8 bits
+    /// (see [`quantizer`]); entry `q` holds the colour at raw value `lo + q·(hi−lo)/255`.
+    pub fn build_table(&self, range: (u16, u16)) -> ColorTable {
+        let mut t = [[0u16; 3]; 256];
+        let (lo, hi) = (range.0 as f64, range.1 as f64);
+        for (q, out) in t.iter_mut().enumerate() {
+            let v = lo + q as f64 * (hi - lo) / 255.0;
+            let c = eval(self.points, v);
+            *out = c.map(|x| fixed::from_f64(x) as u16);
+        }
+        t
+    }
+}
+
+/// Opacity modulation by gradient magnitude (Levoy's surface emphasis): a
+/// piecewise-linear factor in `[0, 1]` over the gradient magnitude, measured in raw
+/// scalar units per smallest voxel spacing and clamped to 255 before lookup (a table of
+/// 256 entries, like Lacroute's gradient-magnitude classification).
+#[derive(Clone, Copy, Debug)]
+pub struct GradientTf<'a> {
+    points: &'a [(f64, [f64; 1])],
+}
+
+impl<'a> GradientTf<'a> {
+    /// Validates breakpoints: strictly increasing finite magnitudes, factors in `[0, 1]`.
+    pub fn new(points: &'a [(f64, [f64; 1])]) -> Result<Self, Error> {
+        OpacityTf::new(points)?;
+        Ok(GradientTf { points })
+    }
+    /// Q15 factor per clamped magnitude 0..=255.
+    pub fn build_table(&self) -> [u16; 256] {
+        let mut t = [0u16; 256];
+        for (m, out) in t.iter_mut().enumerate() {
+            *out = fixed::from_f64(eval(self.points, m as f64)[0]) as u16;
+        }
+        t
+    }
+}
+
+/// Maps raw values of range `(lo, hi)` to 8 bits with rounding; returns `(offset,
+/// multiplier Q16)` so the per-voxel step is integer: `q = ((v−lo)·m + 2^15) >> 16`.
+pub fn quantizer(range: (u16, u16)) -> (u32, u32) {
+    let span = range.1.saturating_sub(range.0) as u64;
+    if span == 0 {
+        return (range.0 as u32, 0);
+    }
+    ((range.0) as u32, ((255u64 << 16) / span) as u32)
+}
+
+/// Fixed-point factors that turn index differences into physical gradients measured per
+/// smallest spacing: `w_axis = round(2^12 · s_min / s_axis)`.
+fn gradient_weights(grid: &Grid) -> [i64; 3] {
+    let smin = grid.min_spacing();
+    grid.spacing
+        .map(|s| libm::round(4096.0 * smin / s).max(1.0) as i64)
+}
+
+/// Classifies a dense scalar volume into voxel records (`out` in the same x-fastest
+/// order). Opacity comes from `opacity_table` (indexed by raw value, see
+/// [`OpacityTf::build_table`]), optionally scaled by `gradient_table` of the gradient
+/// magnitude; normals come from central differences that honour the spacing (one-sided at
+/// the faces).
+pub fn classify(
+    grid: &Grid,
+    scalars: Scalars<'_>,
+    opacity_table: &[u8],
+    gradient_table: Option<&[u16; 256]>,
+    out: &mut [Voxel],
+) -> Result<(), Error> {
+    let n = grid.voxel_count();
+    if scalars.len() != n {
+        return Err(Error::BadDimensions {
+            reason: "data length does not match the dimensions",
+        });
+    }
+    need("voxels", n, out.len())?;
+    need("opacity table", scalars.value_count(), opacity_table.len())?;
+    let range = scalars.range();
+    let (q_off, q_mul) = quantizer(range);
+    let w = gradient_weights(grid);
+    let [nx, ny, nz] = grid.dims;
+    let (sy, sz) = (nx, nx * ny);
+    // Central difference along one axis at coordinate c (stride `st`, size `len`), twice
+    // the one-sided difference at the faces so both have the same scale.
+    let diff = |idx: usize, c: usize, len: usize, st: usize| -> i64 {
+        if len == 1 {
+            0
+        } else if c == 0 {
+            2 * (scalars.at(idx + st) - scalars.at(idx)) as i64
+        } else if c == len - 1 {
+            2 * (scalars.at(idx) - scalars.at(idx - st)) as i64
+        } else {
+            (scalars.at(idx + st) - scalars.at(idx - st)) as i64
+        }
+    };
+    for z in 0..nz {
+        for y in 0..ny {
+            let row = z * sz + y * sy;
+            for x in 0..nx {
+                let idx = row + x;
+                let v = scalars.at(idx);
+                let gx = diff(idx, x, nx, 1) * w[0];
+                let gy = diff(idx, y, ny, sy) * w[1];
+                let gz = diff(idx, z, nz, sz) * w[2];
+                let mut alpha = opacity_table[v as usize] as u32;
+                if let Some(gt) = gradient_table {
+                    // |g| in raw units per s_min: the differences span 2 voxels and the
+                    // weights carry 2^12.
+                    let m2 = (gx * gx + gy * gy + gz * gz) as u64;
+                    let mag = fixed::isqrt(m2) >> 13;
+                    let f = gt[mag.min(255) as usize] as u32;
+                    alpha = fixed::mul(alpha, f);
+                }
+                let q = (((v as u32 - q_off) * q_mul + (1 << 15)) >> 16).min(255);
+                out[idx] = Voxel {
+                    opacity: alpha as u8,
+                    scalar: q as u8,
+                    normal: normal::encode(gx, gy, gz),
+                };
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Per-frame opacity correction (Lacroute 1995, §2.2.2): the stored opacity is for a path
+/// of length `s_min`; a sample that stands for a path of `ratio · s_min` has opacity
+/// `1 − (1 − α)^ratio`. Returns the corrected opacity in Q15 for each 8-bit opacity.
+pub fn opacity_correction(ratio: f64) -> [u16; 256] {
+    let mut t = [0u16; 256];
+    for (a, out) in t.iter_mut().enumerate() {
+        let alpha = a as f64 / 255.0;
+        let c = if a == 255 {
+            1.0
+        } else {
+            1.0 - libm::pow(1.0 - alpha, ratio)
+        };
+        *out = fixed::from_f64(c).min(ONE) as u16;
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn opacity_table_interpolates_and_clamps() {
+        let pts = [(10.0, [0.0]), (20.0, [1.0])];
+        let tf = OpacityTf::new(&pts).unwrap();
+        let mut t = [0u8; 256];
+        tf.build_table(&mut t);
+        assert_eq!(t[0], 0);
+        assert_eq!(t[10], 0);
+        assert_eq!(t[15], 128);
+        assert_eq!(t[20], 255);
+        assert_eq!(t[255], 255);
+    }
+
+    #[test]
+    fn invalid_transfer_functions_are_rejected() {
+        assert!(OpacityTf::new(&[]).is_err());
+        assert!(OpacityTf::new(&[(1.0, [0.0]), (1.0, [0.5])]).is_err());
+        assert!(OpacityTf::new(&[(1.0, [1.5])]).is_err());
+        assert!(OpacityTf::new(&[(f64::NAN, [0.5])]).is_err());
+        assert!(ColorTf::new(&[(0.0, [0.0, -0.1, 0.0])]).is_err());
+    }
+
+    #[test]
+    fn quantizer_maps_the_range_onto_0_255() {
+        for range in [(0u16, 255u16), (0, 1059), (1000, 4010), (7, 8)] {
+            let (o, m) = quantizer(range);
+            let q = |v: u16| ((v as u32 - o) * m + (1 << 15)) >> 16;
+            assert_eq!(q(range.0), 0);
+            let top = q(range.1);
+            assert!(top == 255 || top == 254, "{range:?} -> {top}");
+        }
+        assert_eq!(quantizer((5, 5)).1, 0);
+    }
+
+    #[test]
+    fn gradient_of_a_linear_ramp_points_along_the_ramp_and_honours_spacing() {
+        // f = 10·x on a 4×3×3 grid with spacing (2, 1, 1): physical gradient along +x.
+        let grid = Grid::new([4, 3, 3], [2.0, 1.0, 1.0]).unwrap();
+        let data: [u8; 36] = core::array::from_fn(|i| (10 * (i % 4)) as u8);
+        let table: [u8; 256] = core::array::from_fn(|_| 255);
+        let mut out = [Voxel::default(); 36];
+        classify(&grid, Scalars::U8(&data), &table, None, &mut out).unwrap();
+        for v in out {
+            let n = normal::decode(v.normal).unwrap();
+            assert!(n[0] > 0.99, "{n:?}");
+        }
+        // A ramp along y with the same index step is twice as steep physically, which
+        // only the gradient-magnitude path can see: 20 units per s_min = 1.
+        let data_y: [u8; 36] = core::array::from_fn(|i| (10 * ((i / 4) % 3)) as u8);
+        let pts = [(0.0, [0.0]), (40.0, [1.0])];
+        let gt = GradientTf::new(&pts).unwrap().build_table();
+        classify(&grid, Scalars::U8(&data_y), &table, Some(&gt), &mut out).unwrap();
+        // Magnitude 10 per voxel = 10 per s_min along y → factor 0.25.
+        assert!((out[4 + 1].opacity as i32 - 64).abs() <= 2, "{}", out[5].opacity);
+    }
+
+    #[test]
+    fn classify_rejects_mismatched_buffers() {
+        let grid = Grid::new([2, 2, 2], [1.0; 3]).unwrap();
+        let data = [0u8; 8];
+        let table = [0u8; 256];
+        let mut small = [Voxel::default(); 7];
+        assert!(matches!(
+            classify(&grid, Scalars::U8(&data), &table, None, &mut small),
+            Err(Error::BufferTooSmall { .. })
+        ));
+        let mut out = [Voxel::default(); 8];
+        assert!(classify(&grid, Scalars::U8(&data[..7]), &table, None, &mut out).is_err());
+        assert!(classify(&grid, Scalars::U8(&data), &table[..10], None, &mut out).is_err());
+    }
+
+    #[test]
+    fn bad_grids_are_rejected() {
+        assert!(Grid::new([0, 1, 1], [1.0; 3]).is_err());
+        assert!(Grid::new([5000, 1, 1], [1.0; 3]).is_err());
+        assert!(Grid::new([4096, 4096, 4096], [1.0; 3]).is_err());
+        assert!(Grid::new([1, 1, 1], [1.0, 0.0, 1.0]).is_err());
+        assert!(Grid::new([1, 1, 1], [1.0, f64::INFINITY, 1.0]).is_err());
+    }
+
+    #[test]
+    fn opacity_correction_is_identity_at_ratio_one_and_monotone() {
+        let t = opacity_correction(1.0);
+        for a in 0..256 {
+            assert!((t[a] as i32 - fixed::from_u8(a as u8) as i32).abs() <= 1);
+        }
+        let t2 = opacity_correction(2.0);
+        assert!(t2.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(t2[255] as u32, ONE);
+        // 1-(1-0.5)^2 = 0.75
+        assert!((t2[128] as f64 / ONE as f64 - 0.7539).abs() < 0.01);
+    }
+}

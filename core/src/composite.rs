@@ -1,0 +1,442 @@
+//! Front-to-back compositing of sheared slices into the intermediate image
+//! (Lacroute 1995, §4.1).
+//!
+//! For each slice the two voxel scanlines that straddle an intermediate scanline are
+//! resampled bilinearly (the weights are the same for every pixel of the slice, because
+//! the shear translates whole slices) and composited with the "over" operator.
+//!
+//! Work is skipped in two ways, both exact:
+//! - the run-length-encoded voxel scanlines are walked in lockstep and only pixels whose
+//!   footprint touches a non-transparent voxel are visited;
+//! - pixels that reached the early-ray-termination opacity are linked over: each opaque
+//!   pixel stores the distance to the next pixel that may still change, and the distances
+//!   are path-compressed as they are followed (Lacroute's offset array).
+//!
+//! All arithmetic is Q15 integer. Voxel colours are shaded once per voxel row and slice
+//! into a row buffer (premultiplied RGBA); each row is used by two intermediate scanlines.
+
+use crate::classify::{ColorTable, Voxel};
+use crate::error::{need, Error};
+use crate::fixed::{self, ONE};
+use crate::rle::RleSlice;
+use crate::shade::ShadeTable;
+use crate::view::{Factorization, SliceOffset};
+
+/// Premultiplied RGBA, Q15 per channel.
+pub type Rgba = [u16; 4];
+
+/// Compositing mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Front-to-back "over" compositing of shaded, classified samples.
+    Composite,
+    /// Maximum intensity projection of the resampled 8-bit scalar (grey output).
+    /// Voxels classified transparent count as zero, so the opacity transfer function
+    /// acts as a window.
+    Mip,
+}
+
+/// Per-frame lookup tables the compositor reads.
+#[derive(Clone, Copy)]
+pub struct SliceTables<'a> {
+    /// Opacity-corrected Q15 opacity per stored 8-bit opacity.
+    pub opacity: &'a [u16; 256],
+    /// Q15 RGB per quantised scalar.
+    pub color: &'a ColorTable,
+    /// Shading per normal code ([`ShadeTable::UNSHADED`] for none).
+    pub shade: &'a ShadeTable,
+    /// Mode.
+    pub mode: Mode,
+    /// Early-ray-termination opacity, Q15; pixels at or above it are never touched again.
+    pub ert: u32,
+}
+
+/// The intermediate image: pixels plus the opaque-pixel links.
+pub struct Intermediate<'a> {
+    width: usize,
+    height: usize,
+    pixels: &'a mut [Rgba],
+    links: &'a mut [u16],
+}
+
+impl<'a> Intermediate<'a> {
+    /// Borrows buffers of at least `width·height` entries each and clears them.
+    pub fn new(
+        width: usize,
+        height: usize,
+        pixels: &'a mut [Rgba],
+        links: &'a mut [u16],
+    ) -> Result<Self, Error> {
+        if width >= u16::MAX as usize {
+            return Err(Error::BadParameter {
+                reason: "intermediate image wider than 65534 pixels",
+            });
+        }
+        let n = width * height;
+        need("intermediate pixels", n, pixels.len())?;
+        need("intermediate links", n, links.len())?;
+        let pixels = &mut pixels[..n];
+        let links = &mut links[..n];
+        pixels.fill([0; 4]);
+        links.fill(0);
+        Ok(Intermediate {
+            width,
+            height,
+            pixels,
+            links,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+    /// Pixels, row-major.
+    pub fn pixels(&self) -> &[Rgba] {
+        self.pixels
+    }
+}
+
+/// Row-buffer entries the compositor needs for slices `ni` voxels wide (two rows with a
+/// guard entry on each side).
+pub const fn row_buffer_len(ni: usize) -> usize {
+    2 * (ni + 2)
+}
+
+/// Non-transparent spans `[start, end)` of one scanline's runs; adjacent runs split at 255
+/// come out as one span.
+struct Spans<'a> {
+    runs: &'a [u8],
+    next: usize,
+    pos: usize,
+}
+
+impl<'a> Spans<'a> {
+    fn new(runs: &'a [u8]) -> Self {
+        Spans {
+            runs,
+            next: 0,
+            pos: 0,
+        }
+    }
+}
+
+impl Iterator for Spans<'_> {
+    type Item = (usize, usize);
+    #[inline]
+    fn next(&mut self) -> Option<(usize, usize)> {
+        // Runs alternate transparent, visible; `next` is always at a transparent run.
+        loop {
+            let pair = self.runs.get(self.next..self.next + 2)?;
+            self.next += 2;
+            self.pos += pair[0] as usize;
+            if pair[1] == 0 {
+                continue;
+            }
+            let start = self.pos;
+            self.pos += pair[1] as usize;
+            // Merge continuations (zero-length transparent runs).
+            while let Some(p) = self.runs.get(self.next..self.next + 2) {
+                if p[0] != 0 {
+                    break;
+                }
+                self.next += 2;
+                self.pos += p[1] as usize;
+            }
+            return Some((start, self.pos));
+        }
+    }
+}
+
+/// A shaded voxel row: premultiplied colours at buffer index `i + 1` for voxel `i`, zero
+/// elsewhere, plus the range that holds non-zero entries (to clear it cheaply).
+struct Row<'b> {
+    buf: &'b mut [Rgba],
+    dirty: (usize, usize),
+}
+
+impl Row<'_> {
+    fn clear(&mut self) {
+        let (a, b) = self.dirty;
+        if a < b {
+            self.buf[a..b].fill([0; 4]);
+        }
+        self.dirty = (0, 0);
+    }
+
+    fn fill(&mut self, runs: &[u8], voxels: &[Voxel], t: &SliceTables<'_>) {
+        self.clear();
+        let mut v = 0usize;
+        let mut lo = usize::MAX;
+        let mut hi = 0;
+        for (a, b) in Spans::new(runs) {
+            let out = &mut self.buf[a + 1..b + 1];
+            let src = &voxels[v..v + (b - a)];
+            v += b - a;
+            lo = lo.min(a + 1);
+            hi = b + 1;
+            match t.mode {
+                Mode::Composite => {
+                    for (o, vox) in out.iter_mut().zip(src) {
+                        let alpha = t.opacity[vox.opacity as usize] as u32;
+                        let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
+                        *o = [
+                            fixed::mul(c[0], alpha) as u16,
+                            fixed::mul(c[1], alpha) as u16,
+                            fixed::mul(c[2], alpha) as u16,
+                            alpha as u16,
+                        ];
+                    }
+                }
+                Mode::Mip => {
+                    for (o, vox) in out.iter_mut().zip(src) {
+                        let g = fixed::from_u8(vox.scalar) as u16;
+                        *o = [g; 4];
+                    }
+                }
+            }
+        }
+        if lo < hi {
+            self.dirty = (lo, hi);
+        }
+    }
+}
+
+/// Follows opaque-pixel links from `u` to the first pixel at or after it that is not
+/// opaque (or `links.len()`), compressing the path so later walks take one step.
+#[inline]
+fn skip_opaque(links: &mut [u16], u: usize) -> usize {
+    let mut t = u;
+    while t < links.len() && links[t] != 0 {
+        t += links[t] as usize;
+    }
+    let target = t.min(links.len());
+    let mut p = u;
+    while p < target {
+        let next = p + links[p] as usize;
+        links[p] = (target - p).min(u16::MAX as usize) as u16;
+        p = next;
+    }
+    target
+}
+
+/// Merges two sorted span streams into sorted, disjoint pixel spans after translating by
+/// `shift` and widening each by one pixel on the right (a voxel at `i` reaches pixels
+/// `i + shift` and `i + shift + 1`).
+struct MergedSpans<'a> {
+    a: core::iter::Peekable<Spans<'a>>,
+    b: core::iter::Peekable<Spans<'a>>,
+}
+
+impl Iterator for MergedSpans<'_> {
+    type Item = (usize, usize);
+    #[inline]
+    fn next(&mut self) -> Option<(usize, usize)> {
+        let pick = |a: &mut core::iter::Peekable<Spans<'_>>,
+                    b: &mut core::iter::Peekable<Spans<'_>>|
+         -> Option<(usize, usize)> {
+            match (a.peek(), b.peek()) {
+                (Some(x), Some(y)) => {
+                    if x.0 <= y.0 {
+                        a.next()
+                    } else {
+                        b.next()
+                    }
+                }
+                (Some(_), None) => a.next(),
+                (None, _) => b.next(),
+            }
+        };
+        let (s, mut e) = pick(&mut self.a, &mut self.b)?;
+        e += 1;
+        loop {
+            let nxt = match (self.a.peek(), self.b.peek()) {
+                (Some(x), Some(y)) => x.0.min(y.0),
+                (Some(x), None) => x.0,
+                (None, Some(y)) => y.0,
+                (None, None) => break,
+            };
+            if nxt > e {
+                break;
+            }
+            let (_, e2) = pick(&mut self.a, &mut self.b)?;
+            e = e.max(e2 + 1);
+        }
+        Some((s, e))
+    }
+}
+
+/// Composites slice `k` into scanlines `bands.0..bands.1` of the intermediate image.
+/// `rows` must hold [`row_buffer_len`]`(ni)` entries and be all zero on the first call of
+/// a frame (the compositor leaves it zero when it returns).
+pub fn composite_slice(
+    img: &mut Intermediate<'_>,
+    slice: &RleSlice<'_>,
+    k: usize,
+    view: &Factorization,
+    tables: &SliceTables<'_>,
+    rows: &mut [Rgba],
+    bands: (usize, usize),
+) -> Result<(), Error> {
+    let [ni, nj, _] = view.dims;
+    if slice.ni != ni || slice.nj != nj {
+        return Err(Error::MalformedRle {
+            reason: "slice dimensions do not match the view",
+        });
+    }
+    need("row buffer", row_buffer_len(ni), rows.len())?;
+    let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
+    let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
+    let mut top = Row {
+        buf: r0,
+        dirty: (0, ni + 2),
+    };
+    let mut bot = Row {
+        buf: r1,
+        dirty: (0, ni + 2),
+    };
+    top.clear();
+    bot.clear();
+    // Weights: f weighs the left column / top row.
+    let w = fixed::bilinear_weights(ou.f, ov.f);
+    let width = img.width;
+    // Scanline v reads voxel rows jt = v − n_v − 1 and jt + 1.
+    let band_lo = bands.0 as i64;
+    let band_hi = bands.1.min(img.height) as i64;
+    let jt_lo = (band_lo - ov.n as i64 - 1).max(-1);
+    let jt_hi = (band_hi - ov.n as i64 - 1).min(nj as i64 - 1);
+    if jt_lo > jt_hi {
+        return Ok(());
+    }
+    let empty: (&[u8], &[Voxel]) = (&[], &[]);
+    let row_of = |j: i64| if j >= 0 && (j as usize) < nj {
+        slice.scanline(j as usize)
+    } else {
+        empty
+    };
+    let mut top_runs = row_of(jt_lo).0;
+    let first = row_of(jt_lo);
+    top.fill(first.0, first.1, tables);
+    for jt in jt_lo..=jt_hi {
+        let next = row_of(jt + 1);
+        bot.fill(next.0, next.1, tables);
+        let v = jt + ov.n as i64 + 1;
+        if v >= 0 && (v as usize) < img.height {
+            let line = v as usize * width;
+            let pixels = &mut img.pixels[line..line + width];
+            let links = &mut img.links[line..line + width];
+            let shift = ou.n as i64;
+            let spans = MergedSpans {
+                a: Spans::new(top_runs).peekable(),
+                b: Spans::new(next.0).peekable(),
+            };
+            for (a, b) in spans {
+                let ua = (a as i64 + shift).clamp(0, width as i64) as usize;
+                let ub = (b as i64 + shift).clamp(0, width as i64) as usize;
+                composite_span(pixels, links, top.buf, bot.buf, ua, ub, ou.n, w, tables);
+            }
+        }
+        core::mem::swap(&mut top, &mut bot);
+        top_runs = next.0;
+    }
+    top.clear();
+    bot.clear();
+    Ok(())
+}
+
+/// The inner loop: pixels `ua..ub` of one scanline.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn composite_span(
+    pixels: &mut [Rgba],
+    links: &mut [u16],
+    top: &[Rgba],
+    bot: &[Rgba],
+    ua: usize,
+    ub: usize,
+    n: i32,
+    w: [u32; 4],
+    t: &SliceTables<'_>,
+) {
+    let mut u = ua;
+    while u < ub {
+        if links[u] != 0 {
+            u = skip_opaque(links, u);
+            continue;
+        }
+        // Buffer index of the left voxel: (u − n − 1) + 1.
+        let bl = (u as i64 - n as i64) as usize;
+        let (tl, tr, bl_, br) = (top[bl], top[bl + 1], bot[bl], bot[bl + 1]);
+        let mut s = [0u32; 4];
+        for c in 0..4 {
+            s[c] = (w[0] * tl[c] as u32
+                + w[1] * tr[c] as u32
+                + w[2] * bl_[c] as u32
+                + w[3] * br[c] as u32
+                + (1 << 14))
+                >> 15;
+        }
+        let p = &mut pixels[u];
+        match t.mode {
+            Mode::Composite => {
+                if s[3] != 0 {
+                    let tr = ONE - p[3] as u32;
+                    for c in 0..4 {
+                        p[c] = (p[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16;
+                    }
+                    if p[3] as u32 >= t.ert {
+                        links[u] = 1;
+                    }
+                }
+            }
+            Mode::Mip => {
+                if s[0] > p[0] as u32 {
+                    *p = [s[0] as u16; 4];
+                }
+            }
+        }
+        u += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spans_merge_split_runs() {
+        let runs = [2u8, 3, 0, 4, 1, 0, 0, 2];
+        let v: heapless::Vec<(usize, usize), 8> = Spans::new(&runs).collect();
+        assert_eq!(&v[..], &[(2, 9), (10, 12)]);
+        let runs = [0u8, 1, 3, 1, 2, 0];
+        let v: heapless::Vec<(usize, usize), 8> = Spans::new(&runs).collect();
+        assert_eq!(&v[..], &[(0, 1), (4, 5)]);
+    }
+
+    #[test]
+    fn merged_spans_are_disjoint_and_dilated() {
+        let a = [1u8, 2, 5, 1, 0, 0]; // [1,3) [8,9)
+        let b = [3u8, 1, 3, 2]; // [3,4) [7,9)
+        let m = MergedSpans {
+            a: Spans::new(&a).peekable(),
+            b: Spans::new(&b).peekable(),
+        };
+        let v: heapless::Vec<(usize, usize), 8> = m.collect();
+        assert_eq!(&v[..], &[(1, 5), (7, 10)]);
+    }
+
+    #[test]
+    fn skip_opaque_follows_and_compresses_links() {
+        let mut links = [0u16, 1, 1, 1, 0, 1, 0];
+        assert_eq!(skip_opaque(&mut links, 1), 4);
+        assert_eq!(links[1], 3);
+        assert_eq!(links[2], 2);
+        assert_eq!(skip_opaque(&mut links, 5), 6);
+        let mut end = [1u16, 1];
+        assert_eq!(skip_opaque(&mut end, 0), 2);
+    }
+}

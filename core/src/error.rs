@@ -1,0 +1,72 @@
+//! Errors as values: every failure the core can detect, with enough detail to name it.
+
+use core::fmt;
+
+/// Everything that can go wrong inside the core.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Error {
+    /// A caller-provided buffer is shorter than the configuration requires.
+    BufferTooSmall {
+        /// Which buffer.
+        what: &'static str,
+        /// Elements needed.
+        needed: usize,
+        /// Elements provided.
+        got: usize,
+    },
+    /// Volume dimensions are zero, too large, or inconsistent with the data length.
+    BadDimensions {
+        /// Why they were rejected.
+        reason: &'static str,
+    },
+    /// A voxel spacing is not a positive finite number.
+    BadSpacing,
+    /// A transfer function is malformed.
+    BadTransferFunction {
+        /// Why it was rejected.
+        reason: &'static str,
+    },
+    /// A run-length-encoded stream is inconsistent (run lengths do not add up to the
+    /// scanline width, or point past the voxel data).
+    MalformedRle {
+        /// What is inconsistent.
+        reason: &'static str,
+    },
+    /// View or rendering parameters are invalid (image size, angles, thresholds).
+    BadParameter {
+        /// Which parameter and why.
+        reason: &'static str,
+    },
+    /// A volume source failed to deliver a slice (I/O error or corrupt data).
+    Source {
+        /// What failed.
+        reason: &'static str,
+    },
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::BufferTooSmall { what, needed, got } => {
+                write!(f, "buffer `{what}` too small: need {needed} elements, got {got}")
+            }
+            Error::BadDimensions { reason } => write!(f, "bad volume dimensions: {reason}"),
+            Error::BadSpacing => write!(f, "voxel spacing must be positive and finite"),
+            Error::BadTransferFunction { reason } => write!(f, "bad transfer function: {reason}"),
+            Error::MalformedRle { reason } => write!(f, "malformed run-length data: {reason}"),
+            Error::BadParameter { reason } => write!(f, "bad parameter: {reason}"),
+            Error::Source { reason } => write!(f, "volume source failed: {reason}"),
+        }
+    }
+}
+
+impl core::error::Error for Error {}
+
+/// Returns `BufferTooSmall` unless `got >= needed`.
+pub(crate) fn need(what: &'static str, needed: usize, got: usize) -> Result<(), Error> {
+    if got < needed {
+        Err(Error::BufferTooSmall { what, needed, got })
+    } else {
+        Ok(())
+    }
+}

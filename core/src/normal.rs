@@ -1,0 +1,107 @@
+//! Quantised surface normals.
+//!
+//! A normal is stored as a 13-bit code (Lacroute quantises to 13 bits as well; the grid
+//! here is an octahedral one, which spreads codes more evenly over the sphere). The
+//! gradient is projected onto the octahedron |x|+|y|+|z| = 1; its upper-hemisphere footprint,
+//! rotated by 45°, fills the square [−1, 1]², which is cut into a 64×64 grid; one more bit
+//! records the sign of z. Code [`ZERO_GRADIENT`] marks a vanishing gradient (homogeneous
+//! regions), which shading treats as ambient plus unoriented diffuse light.
+//!
+//! Encoding is pure integer arithmetic (it runs per voxel); decoding runs once per code
+//! per frame when the shading table is built.
+
+/// Number of grid cells per side of the rotated octahedral square.
+pub const GRID: i64 = 64;
+/// Number of codes for non-zero gradients.
+pub const DIRECTIONS: usize = (2 * GRID * GRID) as usize;
+/// Code for a zero gradient.
+pub const ZERO_GRADIENT: u16 = DIRECTIONS as u16;
+/// Size of tables indexed by normal code.
+pub const CODES: usize = DIRECTIONS + 1;
+
+/// Encodes an integer gradient (any common scale) into a normal code.
+#[inline]
+pub fn encode(gx: i64, gy: i64, gz: i64) -> u16 {
+    let l1 = gx.abs() + gy.abs() + gz.abs();
+    if l1 == 0 {
+        return ZERO_GRADIENT;
+    }
+    let half = GRID / 2;
+    // a = (gx - gy)/l1 and b = (gx + gy)/l1 are in [-1, 1]; map to cells 0..GRID-1.
+    let a = ((half * (gx - gy + l1)).div_euclid(l1)).clamp(0, GRID - 1);
+    let b = ((half * (gx + gy + l1)).div_euclid(l1)).clamp(0, GRID - 1);
+    let neg = (gz < 0) as i64;
+    ((neg * GRID + b) * GRID + a) as u16
+}
+
+/// Decodes a code into a unit vector (the cell centre's direction). `None` for
+/// [`ZERO_GRADIENT`] or out-of-range codes.
+pub fn decode(code: u16) -> Option<[f64; 3]> {
+    if code as usize >= DIRECTIONS {
+        return None;
+    }
+    let c = code as i64;
+    let a_i = c % GRID;
+    let b_i = (c / GRID) % GRID;
+    let neg = c / (GRID * GRID) == 1;
+    let half = (GRID / 2) as f64;
+    let a = (a_i as f64 + 0.5) / half - 1.0;
+    let b = (b_i as f64 + 0.5) / half - 1.0;
+    let px = (a + b) * 0.5;
+    let py = (b - a) * 0.5;
+    let pz0 = (1.0 - libm::fabs(px) - libm::fabs(py)).max(0.0);
+    let pz = if neg { -pz0 } else { pz0 };
+    let len = libm::sqrt(px * px + py * py + pz * pz);
+    Some([px / len, py / len, pz / len])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+        let d = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]).clamp(-1.0, 1.0);
+        libm::acos(d).to_degrees()
+    }
+
+    #[test]
+    fn round_trip_error_is_small_over_a_dense_set_of_directions() {
+        let mut worst: f64 = 0.0;
+        for gx in -20i64..=20 {
+            for gy in -20i64..=20 {
+                for gz in -20i64..=20 {
+                    if gx == 0 && gy == 0 && gz == 0 {
+                        continue;
+                    }
+                    let code = encode(gx, gy, gz);
+                    let n = decode(code).unwrap();
+                    let l = ((gx * gx + gy * gy + gz * gz) as f64).sqrt();
+                    let g = [gx as f64 / l, gy as f64 / l, gz as f64 / l];
+                    worst = worst.max(angle_deg(n, g));
+                }
+            }
+        }
+        // 8192 directions: mean spacing ~2.2°, worst cell half-diagonal a little more.
+        assert!(worst < 3.5, "worst angular error {worst}°");
+    }
+
+    #[test]
+    fn every_code_decodes_to_a_unit_vector_that_encodes_back_to_itself() {
+        for code in 0..DIRECTIONS as u16 {
+            let n = decode(code).unwrap();
+            let s = 1u64 << 30;
+            let g = n.map(|c| (c * s as f64) as i64);
+            assert_eq!(encode(g[0], g[1], g[2]), code, "code {code} -> {n:?}");
+        }
+        assert_eq!(decode(ZERO_GRADIENT), None);
+        assert_eq!(encode(0, 0, 0), ZERO_GRADIENT);
+    }
+
+    #[test]
+    fn extreme_gradients_do_not_overflow() {
+        let m = 1i64 << 40;
+        for g in [[m, 0, 0], [-m, m, -m], [0, 0, -m]] {
+            assert!(encode(g[0], g[1], g[2]) < ZERO_GRADIENT);
+        }
+    }
+}

@@ -1,0 +1,527 @@
+//! Run-length-encoded classified volumes (Lacroute 1995, §4.1.1).
+//!
+//! For each principal axis the volume is stored as slices perpendicular to that axis;
+//! each scanline of a slice is a sequence of run lengths (`u8`), alternating transparent
+//! and non-transparent and always starting with a transparent run (possibly of length 0),
+//! plus the non-transparent voxels themselves. Runs longer than 255 are split by a
+//! zero-length run of the other kind; each scanline holds an even number of runs, so the
+//! run stream can be entered at any scanline. A scanline index gives, for each scanline,
+//! the offset of its first run and first voxel; slice `k` starts at scanline `k·nj`.
+//!
+//! Three copies exist because the compositor streams slices in storage order along
+//! whichever axis is principal for the view.
+//!
+//! Axis order inside a slice follows the thesis' permutation to keep the principal axis
+//! last and the cycle right-handed: principal x → (i, j, k) = (y, z, x); principal y →
+//! (z, x, y); principal z → (x, y, z).
+
+use crate::classify::{Grid, Voxel};
+use crate::error::{need, Error};
+
+/// Scanline start offsets into the run and voxel arrays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ScanIndex {
+    /// Index of the scanline's first run length.
+    pub run: u32,
+    /// Index of the scanline's first non-transparent voxel.
+    pub voxel: u32,
+}
+
+/// A principal axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Axis {
+    /// x is principal.
+    X = 0,
+    /// y is principal.
+    Y = 1,
+    /// z is principal.
+    Z = 2,
+}
+
+impl Axis {
+    /// All three, in storage order.
+    pub const ALL: [Axis; 3] = [Axis::X, Axis::Y, Axis::Z];
+
+    /// Object axes that play the roles (i, j, k) when this axis is principal.
+    pub const fn permutation(self) -> [usize; 3] {
+        match self {
+            Axis::X => [1, 2, 0],
+            Axis::Y => [2, 0, 1],
+            Axis::Z => [0, 1, 2],
+        }
+    }
+
+    /// Sizes `(ni, nj, nk)` of the permuted grid.
+    pub const fn permuted_dims(self, dims: [usize; 3]) -> [usize; 3] {
+        let p = self.permutation();
+        [dims[p[0]], dims[p[1]], dims[p[2]]]
+    }
+}
+
+/// Whether a voxel is stored as non-transparent.
+#[inline(always)]
+pub const fn is_visible(v: &Voxel, threshold: u8) -> bool {
+    v.opacity > threshold
+}
+
+/// Lengths of the arrays one axis copy needs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AxisSizes {
+    /// Run lengths.
+    pub runs: usize,
+    /// Non-transparent voxels.
+    pub voxels: usize,
+    /// Scanline index entries (`nj·nk + 1`, the last one a sentinel).
+    pub scans: usize,
+}
+
+/// Walks the dense volume along the permuted scanlines of `axis`, calling `f(Some(voxel))`
+/// per voxel and `f(None)` at each scanline end.
+fn walk(dense: &[Voxel], grid: &Grid, axis: Axis, mut f: impl FnMut(Option<&Voxel>)) {
+    let p = axis.permutation();
+    let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+    let stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
+    let (si, sj, sk) = (stride[p[0]], stride[p[1]], stride[p[2]]);
+    for k in 0..nk {
+        for j in 0..nj {
+            let base = k * sk + j * sj;
+            for i in 0..ni {
+                f(Some(&dense[base + i * si]));
+            }
+            f(None);
+        }
+    }
+}
+
+/// Run-length state machine shared by counting and filling.
+struct RunWriter<'a> {
+    runs: Option<&'a mut [u8]>,
+    voxels: Option<&'a mut [Voxel]>,
+    n_runs: usize,
+    n_vox: usize,
+    cur_visible: bool,
+    cur_len: u32,
+}
+
+impl RunWriter<'_> {
+    fn emit(&mut self, len: u8) {
+        if let Some(r) = self.runs.as_deref_mut() {
+            r[self.n_runs] = len;
+        }
+        self.n_runs += 1;
+    }
+    fn push(&mut self, v: &Voxel, visible: bool) {
+        if visible != self.cur_visible {
+            self.flush();
+            self.cur_visible = visible;
+        }
+        if self.cur_len == 255 {
+            // Split: close this run, insert an empty run of the other kind.
+            self.emit(255);
+            self.emit(0);
+            self.cur_len = 0;
+        }
+        self.cur_len += 1;
+        if visible {
+            if let Some(out) = self.voxels.as_deref_mut() {
+                out[self.n_vox] = *v;
+            }
+            self.n_vox += 1;
+        }
+    }
+    fn flush(&mut self) {
+        self.emit(self.cur_len as u8);
+        self.cur_len = 0;
+    }
+    fn end_scanline(&mut self) {
+        self.flush();
+        if self.cur_visible {
+            // Scanlines close on a non-transparent run: runs come in pairs.
+        } else {
+            self.emit(0);
+        }
+        self.cur_visible = false;
+    }
+}
+
+/// Counts the arrays needed to encode `dense` along `axis` with opacity `threshold`.
+pub fn measure(dense: &[Voxel], grid: &Grid, axis: Axis, threshold: u8) -> Result<AxisSizes, Error> {
+    need("dense voxels", grid.voxel_count(), dense.len())?;
+    let mut w = RunWriter {
+        runs: None,
+        voxels: None,
+        n_runs: 0,
+        n_vox: 0,
+        cur_visible: false,
+        cur_len: 0,
+    };
+    walk(dense, grid, axis, |v| match v {
+        Some(v) => w.push(v, is_visible(v, threshold)),
+        None => w.end_scanline(),
+    });
+    let [_, nj, nk] = axis.permuted_dims(grid.dims);
+    Ok(AxisSizes {
+        runs: w.n_runs,
+        voxels: w.n_vox,
+        scans: nj * nk + 1,
+    })
+}
+
+/// Encodes `dense` along `axis` into caller arrays sized by [`measure`], returning the
+/// encoded axis copy.
+pub fn encode<'a>(
+    dense: &[Voxel],
+    grid: &Grid,
+    axis: Axis,
+    threshold: u8,
+    runs: &'a mut [u8],
+    voxels: &'a mut [Voxel],
+    scans: &'a mut [ScanIndex],
+) -> Result<RleAxis<'a>, Error> {
+    let sizes = measure(dense, grid, axis, threshold)?;
+    need("runs", sizes.runs, runs.len())?;
+    need("voxels", sizes.voxels, voxels.len())?;
+    need("scans", sizes.scans, scans.len())?;
+    if sizes.runs > u32::MAX as usize || sizes.voxels > u32::MAX as usize {
+        return Err(Error::BadDimensions {
+            reason: "encoded volume exceeds 2^32 runs or voxels",
+        });
+    }
+    let runs = &mut runs[..sizes.runs];
+    let voxels = &mut voxels[..sizes.voxels];
+    let scans = &mut scans[..sizes.scans];
+    {
+        let mut w = RunWriter {
+            runs: Some(&mut *runs),
+            voxels: Some(&mut *voxels),
+            n_runs: 0,
+            n_vox: 0,
+            cur_visible: false,
+            cur_len: 0,
+        };
+        let mut line = 0usize;
+        scans[0] = ScanIndex { run: 0, voxel: 0 };
+        walk(dense, grid, axis, |v| match v {
+            Some(v) => w.push(v, is_visible(v, threshold)),
+            None => {
+                w.end_scanline();
+                line += 1;
+                scans[line] = ScanIndex {
+                    run: w.n_runs as u32,
+                    voxel: w.n_vox as u32,
+                };
+            }
+        });
+    }
+    RleAxis::new(grid.dims, axis, runs, voxels, scans)
+}
+
+/// One encoded axis copy, borrowed. Construction validates it completely, so traversal
+/// cannot index out of bounds.
+#[derive(Clone, Copy, Debug)]
+pub struct RleAxis<'a> {
+    axis: Axis,
+    dims: [usize; 3],
+    runs: &'a [u8],
+    voxels: &'a [Voxel],
+    scans: &'a [ScanIndex],
+}
+
+impl<'a> RleAxis<'a> {
+    /// Wraps and validates arrays (from [`encode`] or from a file): every scanline's runs
+    /// must sum to its width, come in pairs, and account for exactly its voxels.
+    pub fn new(
+        dims: [usize; 3],
+        axis: Axis,
+        runs: &'a [u8],
+        voxels: &'a [Voxel],
+        scans: &'a [ScanIndex],
+    ) -> Result<Self, Error> {
+        let [ni, nj, nk] = axis.permuted_dims(dims);
+        let lines = nj.checked_mul(nk).ok_or(Error::BadDimensions {
+            reason: "too many scanlines",
+        })?;
+        if scans.len() != lines + 1 {
+            return Err(Error::MalformedRle {
+                reason: "scanline index length is not nj·nk + 1",
+            });
+        }
+        if scans[0] != (ScanIndex { run: 0, voxel: 0 })
+            || scans[lines].run as usize != runs.len()
+            || scans[lines].voxel as usize != voxels.len()
+        {
+            return Err(Error::MalformedRle {
+                reason: "scanline index does not span the run and voxel arrays",
+            });
+        }
+        for w in scans.windows(2) {
+            check_scanline(ni, runs, w[0], w[1])?;
+        }
+        Ok(RleAxis {
+            axis,
+            dims,
+            runs,
+            voxels,
+            scans,
+        })
+    }
+
+    /// The principal axis this copy is for.
+    pub fn axis(&self) -> Axis {
+        self.axis
+    }
+
+    /// Volume dimensions (object x, y, z).
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// Borrowed arrays `(runs, voxels, scans)`, e.g. for serialisation.
+    pub fn parts(&self) -> (&'a [u8], &'a [Voxel], &'a [ScanIndex]) {
+        (self.runs, self.voxels, self.scans)
+    }
+
+    /// Slice `k` (in the permuted grid), or `None` past the end.
+    pub fn slice(&self, k: usize) -> Option<RleSlice<'a>> {
+        let [ni, nj, nk] = self.axis.permuted_dims(self.dims);
+        if k >= nk {
+            return None;
+        }
+        let scans = &self.scans[k * nj..=(k + 1) * nj];
+        let base = scans[0];
+        let end = scans[nj];
+        Some(RleSlice {
+            ni,
+            nj,
+            base,
+            runs: &self.runs[base.run as usize..end.run as usize],
+            voxels: &self.voxels[base.voxel as usize..end.voxel as usize],
+            scans,
+        })
+    }
+
+    /// Decodes back into a dense volume (x fastest); transparent voxels become
+    /// `Voxel::default()`. Used to check the encoder and by tools.
+    pub fn decode(&self, out: &mut [Voxel]) -> Result<(), Error> {
+        let n = self.dims[0] * self.dims[1] * self.dims[2];
+        need("dense voxels", n, out.len())?;
+        let p = self.axis.permutation();
+        let [_, nj, nk] = self.axis.permuted_dims(self.dims);
+        let stride = [1, self.dims[0], self.dims[0] * self.dims[1]];
+        for v in out[..n].iter_mut() {
+            *v = Voxel::default();
+        }
+        for k in 0..nk {
+            let Some(s) = self.slice(k) else { break };
+            for j in 0..nj {
+                let base = k * stride[p[2]] + j * stride[p[1]];
+                s.for_each_visible(j, |i, v| out[base + i * stride[p[0]]] = *v);
+            }
+        }
+        Ok(())
+    }
+}
+
+fn check_scanline(ni: usize, runs: &[u8], a: ScanIndex, b: ScanIndex) -> Result<(), Error> {
+    if b.run < a.run || b.voxel < a.voxel || b.run as usize > runs.len() {
+        return Err(Error::MalformedRle {
+            reason: "scanline index is not monotone",
+        });
+    }
+    let r = &runs[a.run as usize..b.run as usize];
+    if r.len() % 2 != 0 {
+        return Err(Error::MalformedRle {
+            reason: "a scanline has an odd number of runs",
+        });
+    }
+    let mut total = 0usize;
+    let mut visible = 0usize;
+    for pair in r.chunks_exact(2) {
+        total += pair[0] as usize + pair[1] as usize;
+        visible += pair[1] as usize;
+    }
+    if total != ni {
+        return Err(Error::MalformedRle {
+            reason: "runs of a scanline do not sum to its width",
+        });
+    }
+    if visible != (b.voxel - a.voxel) as usize {
+        return Err(Error::MalformedRle {
+            reason: "runs of a scanline do not match its voxel count",
+        });
+    }
+    Ok(())
+}
+
+/// One slice of an encoded axis: `nj` scanlines of `ni` voxels. Offsets in `scans` are
+/// relative to the axis arrays; `base` is subtracted to index this slice's arrays, which
+/// lets a streaming source hold only one slice in memory.
+#[derive(Clone, Copy, Debug)]
+pub struct RleSlice<'a> {
+    /// Voxels per scanline.
+    pub ni: usize,
+    /// Scanlines.
+    pub nj: usize,
+    /// Offsets of the slice's first run and voxel within the axis copy.
+    pub base: ScanIndex,
+    /// The slice's run lengths.
+    pub runs: &'a [u8],
+    /// The slice's non-transparent voxels.
+    pub voxels: &'a [Voxel],
+    /// `nj + 1` scanline offsets (absolute, see `base`).
+    pub scans: &'a [ScanIndex],
+}
+
+impl<'a> RleSlice<'a> {
+    /// Checks a slice that did not come from a validated [`RleAxis`] (for example one read
+    /// from a stream).
+    pub fn validate(&self) -> Result<(), Error> {
+        if self.scans.len() != self.nj + 1 {
+            return Err(Error::MalformedRle {
+                reason: "slice index length is not nj + 1",
+            });
+        }
+        let b = self.base;
+        let rel = |s: ScanIndex| -> Option<ScanIndex> {
+            Some(ScanIndex {
+                run: s.run.checked_sub(b.run)?,
+                voxel: s.voxel.checked_sub(b.voxel)?,
+            })
+        };
+        let bad = Error::MalformedRle {
+            reason: "slice index lies outside the slice",
+        };
+        let first = rel(self.scans[0]).ok_or(bad)?;
+        let last = rel(self.scans[self.nj]).ok_or(bad)?;
+        if first != ScanIndex::default()
+            || last.run as usize != self.runs.len()
+            || last.voxel as usize != self.voxels.len()
+        {
+            return Err(bad);
+        }
+        for w in self.scans.windows(2) {
+            check_scanline(self.ni, self.runs, rel(w[0]).ok_or(bad)?, rel(w[1]).ok_or(bad)?)?;
+        }
+        Ok(())
+    }
+
+    /// Runs and voxels of scanline `j` (`j < nj`).
+    #[inline]
+    pub fn scanline(&self, j: usize) -> (&'a [u8], &'a [Voxel]) {
+        let a = self.scans[j];
+        let b = self.scans[j + 1];
+        let r0 = (a.run - self.base.run) as usize;
+        let r1 = (b.run - self.base.run) as usize;
+        let v0 = (a.voxel - self.base.voxel) as usize;
+        let v1 = (b.voxel - self.base.voxel) as usize;
+        (&self.runs[r0..r1], &self.voxels[v0..v1])
+    }
+
+    /// Calls `f(i, voxel)` for each non-transparent voxel of scanline `j`.
+    pub fn for_each_visible(&self, j: usize, mut f: impl FnMut(usize, &Voxel)) {
+        let (runs, voxels) = self.scanline(j);
+        let mut i = 0;
+        let mut v = 0;
+        for pair in runs.chunks_exact(2) {
+            i += pair[0] as usize;
+            for _ in 0..pair[1] {
+                f(i, &voxels[v]);
+                i += 1;
+                v += 1;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pseudo_random_volume(grid: &Grid, seed: u32) -> [Voxel; 600 * 3] {
+        let mut s = seed;
+        core::array::from_fn(|idx| {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            let on = (s >> 28) < 6 || (idx / 300) % 2 == 0 && idx % 7 != 0;
+            let _ = grid;
+            Voxel {
+                opacity: if on { (s >> 8) as u8 | 1 } else { 0 },
+                scalar: (s >> 16) as u8,
+                normal: (s % 8193) as u16,
+            }
+        })
+    }
+
+    #[test]
+    fn encode_decode_round_trip_on_every_axis() {
+        // 300×2×3: long scanlines force runs > 255 to split along x.
+        let grid = Grid::new([300, 2, 3], [1.0; 3]).unwrap();
+        for seed in [1u32, 7, 99] {
+            let dense = pseudo_random_volume(&grid, seed);
+            for axis in Axis::ALL {
+                let sz = measure(&dense, &grid, axis, 0).unwrap();
+                let mut runs = [0u8; 4000];
+                let mut vox = [Voxel::default(); 1800];
+                let mut scans = [ScanIndex::default(); 1000];
+                let rle = encode(&dense, &grid, axis, 0, &mut runs, &mut vox, &mut scans).unwrap();
+                assert_eq!(rle.parts().0.len(), sz.runs);
+                let mut back = [Voxel::default(); 1800];
+                rle.decode(&mut back).unwrap();
+                for (a, b) in dense.iter().zip(back.iter()) {
+                    let expect = if a.opacity > 0 { *a } else { Voxel::default() };
+                    assert_eq!(expect, *b);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn long_runs_split_into_u8_pieces() {
+        let grid = Grid::new([600, 1, 1], [1.0; 3]).unwrap();
+        let dense = [Voxel {
+            opacity: 200,
+            scalar: 1,
+            normal: 0,
+        }; 600];
+        let mut runs = [0u8; 16];
+        let mut vox = [Voxel::default(); 600];
+        let mut scans = [ScanIndex::default(); 2];
+        let rle = encode(&dense, &grid, Axis::Z, 10, &mut runs, &mut vox, &mut scans).unwrap();
+        assert_eq!(rle.parts().0, &[0, 255, 0, 255, 0, 90]);
+    }
+
+    #[test]
+    fn threshold_decides_transparency() {
+        let grid = Grid::new([4, 1, 1], [1.0; 3]).unwrap();
+        let dense = [5u8, 6, 5, 200].map(|a| Voxel {
+            opacity: a,
+            scalar: 0,
+            normal: 0,
+        });
+        let mut runs = [0u8; 8];
+        let mut vox = [Voxel::default(); 4];
+        let mut scans = [ScanIndex::default(); 2];
+        let rle = encode(&dense, &grid, Axis::Z, 5, &mut runs, &mut vox, &mut scans).unwrap();
+        assert_eq!(rle.parts().0, &[1, 1, 1, 1]);
+        assert_eq!(rle.parts().1.len(), 2);
+    }
+
+    #[test]
+    fn malformed_streams_are_rejected() {
+        let dims = [4, 1, 1];
+        let v = [Voxel::default(); 2];
+        let ok = [ScanIndex { run: 0, voxel: 0 }, ScanIndex { run: 4, voxel: 2 }];
+        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &ok).is_ok());
+        // Wrong sum.
+        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 2], &v, &ok).is_err());
+        // Odd run count.
+        let odd = [ScanIndex { run: 0, voxel: 0 }, ScanIndex { run: 3, voxel: 2 }];
+        assert!(RleAxis::new(dims, Axis::Z, &[2, 1, 1], &v, &odd).is_err());
+        // Voxel count mismatch.
+        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 2, 0], &v, &ok).is_err());
+        // Index past the arrays.
+        let far = [ScanIndex { run: 0, voxel: 0 }, ScanIndex { run: 9, voxel: 2 }];
+        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &far).is_err());
+        // Wrong index length.
+        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &ok[..1]).is_err());
+    }
+}

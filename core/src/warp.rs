@@ -1,0 +1,100 @@
+//! The 2D warp from the intermediate image to the final image (Lacroute 1995, §3.2.3).
+//!
+//! Each output pixel centre is mapped through the inverse affine warp into the
+//! intermediate image and reconstructed bilinearly. Positions are 16.16 fixed point: the
+//! start of each output row is computed from the exact affine map (so error does not
+//! accumulate across rows) and stepped by a constant increment along the row.
+
+use crate::composite::Intermediate;
+use crate::error::{need, Error};
+use crate::fixed;
+use crate::view::Factorization;
+
+/// Receives finished image rows: RGBA8, premultiplied over a black background.
+pub trait PixelSink {
+    /// Row `y` (0 at the top) of the final image, `width` pixels.
+    fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error>;
+}
+
+/// A sink writing into a caller-owned row-major frame buffer.
+pub struct FrameBuffer<'a> {
+    /// Width in pixels.
+    pub width: usize,
+    /// Pixels, row-major.
+    pub pixels: &'a mut [[u8; 4]],
+}
+
+impl PixelSink for FrameBuffer<'_> {
+    fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error> {
+        let start = y * self.width;
+        let got = self.pixels.len();
+        let dst = self
+            .pixels
+            .get_mut(start..start + row.len())
+            .ok_or(Error::BufferTooSmall {
+                what: "frame buffer",
+                needed: start + row.len(),
+                got,
+            })?;
+        dst.copy_from_slice(row);
+        Ok(())
+    }
+}
+
+const FRAC: u32 = 16;
+
+fn to_fixed(x: f64) -> i64 {
+    // Clamp far-away coordinates: anything beyond ±2^40 is outside the image anyway.
+    let c = x.clamp(-1.0e12, 1.0e12);
+    libm::round(c * (1u64 << FRAC) as f64) as i64
+}
+
+/// Warps `img` into the final image, one row at a time through `sink`. `row` must hold
+/// at least the image width.
+pub fn warp(
+    img: &Intermediate<'_>,
+    view: &Factorization,
+    row: &mut [[u8; 4]],
+    sink: &mut impl PixelSink,
+) -> Result<(), Error> {
+    let [w, h] = view.image;
+    need("warp row", w, row.len())?;
+    let row = &mut row[..w];
+    let m = view.image_to_intermediate;
+    let (iw, ih) = (img.width() as i64, img.height() as i64);
+    let px = img.pixels();
+    let du = to_fixed(m[0][0]);
+    let dv = to_fixed(m[1][0]);
+    let one = 1i64 << FRAC;
+    for y in 0..h {
+        let yc = y as f64 + 0.5;
+        let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
+        let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
+        for out in row.iter_mut() {
+            let u0 = u >> FRAC;
+            let v0 = v >> FRAC;
+            if u0 < -1 || v0 < -1 || u0 >= iw || v0 >= ih {
+                *out = [0; 4];
+            } else {
+                let fu = ((one - (u & (one - 1))) >> 1) as u32;
+                let fv = ((one - (v & (one - 1))) >> 1) as u32;
+                let wts = fixed::bilinear_weights(fu, fv);
+                let mut acc = [0u32; 4];
+                let taps = [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)];
+                for (&(tu, tv), &wt) in taps.iter().zip(wts.iter()) {
+                    if wt != 0 && tu >= 0 && tv >= 0 && tu < iw && tv < ih {
+                        let p = px[(tv * iw + tu) as usize];
+                        for c in 0..4 {
+                            acc[c] += wt * p[c] as u32;
+                        }
+                    }
+                }
+                *out = acc.map(|a| fixed::to_u8((a + (1 << 14)) >> 15));
+            }
+            u += du;
+            v += dv;
+        }
+        sink.put_row(y, row)?;
+    }
+    Ok(())
+}
