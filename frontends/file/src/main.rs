@@ -1,1 +1,298 @@
-fn main() {}
+//! `shearwarp`: render volumes to PNG and benchmark the renderer.
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use shearwarp_core::composite::Mode;
+use shearwarp_core::shade::{Light, Lighting};
+use shearwarp_core::view::Camera;
+use shearwarp_file::scene::{self, Classification, Encoded, Look, Renderer};
+use shearwarp_file::tfspec;
+use shearwarp_file::volume::{self, RawVolume};
+use std::error::Error;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(name = "shearwarp", version, about = "Shear-warp volume renderer")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render one view of a volume to a PNG.
+    Render {
+        /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
+        volume: PathBuf,
+        /// Output PNG.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        opts: RenderOpts,
+    },
+    /// Render N frames turning 360/N degrees about Y and report timings.
+    Bench {
+        /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
+        volume: PathBuf,
+        /// Number of frames.
+        #[arg(long, default_value_t = 36)]
+        frames: usize,
+        #[command(flatten)]
+        opts: RenderOpts,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+enum ModeArg {
+    Composite,
+    Mip,
+}
+
+#[derive(Args)]
+struct RenderOpts {
+    /// Image size WxH.
+    #[arg(long, default_value = "256x256")]
+    size: String,
+    /// Rotation about X in degrees (applied after the Y rotation).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    rotate_x: f64,
+    /// Rotation about Y in degrees.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    rotate_y: f64,
+    /// Opacity transfer function "v:a,v:a,..." over raw voxel values (a per smallest
+    /// voxel spacing). Default: a ramp over the data range.
+    #[arg(long)]
+    opacity: Option<String>,
+    /// Colour transfer function "v:#rrggbb,...". Default: a warm grey ramp.
+    #[arg(long)]
+    color: Option<String>,
+    /// Opacity factor over gradient magnitude "m:f,..." (raw units per smallest spacing).
+    #[arg(long)]
+    gradient_opacity: Option<String>,
+    /// Turn on Phong/Blinn shading.
+    #[arg(long)]
+    shading: bool,
+    /// Light direction x,y,z in camera space (x right, y up, z toward viewer); repeat
+    /// for up to 4 lights.
+    #[arg(long, allow_hyphen_values = true)]
+    light: Vec<String>,
+    /// Ambient coefficient.
+    #[arg(long, default_value_t = 0.2)]
+    ka: f64,
+    /// Diffuse coefficient.
+    #[arg(long, default_value_t = 0.7)]
+    kd: f64,
+    /// Specular coefficient.
+    #[arg(long, default_value_t = 0.3)]
+    ks: f64,
+    /// Specular exponent.
+    #[arg(long, default_value_t = 20.0)]
+    shininess: f64,
+    /// Compositing mode.
+    #[arg(long, value_enum, default_value_t = ModeArg::Composite)]
+    mode: ModeArg,
+    /// Voxels with opacity at or below this are skipped as transparent.
+    #[arg(long, default_value_t = 0.02)]
+    min_opacity: f64,
+    /// Early ray termination opacity (1 disables it).
+    #[arg(long, default_value_t = 0.95)]
+    ert: f64,
+    /// Prefer the 16-bit file when the sidecar lists one.
+    #[arg(long)]
+    u16: bool,
+}
+
+struct Prepared {
+    raw: RawVolume,
+    encoded: Encoded,
+    look: Look,
+    camera: Camera,
+}
+
+fn default_opacity(range: (u16, u16), mode: ModeArg) -> Vec<(f64, f64)> {
+    let (lo, hi) = (range.0 as f64, range.1 as f64);
+    let span = (hi - lo).max(1.0);
+    match mode {
+        // Everything above the minimum takes part in the maximum.
+        ModeArg::Mip => vec![(lo, 0.0), (lo + 1.0, 1.0)],
+        ModeArg::Composite => vec![
+            (lo, 0.0),
+            (lo + 0.15 * span, 0.0),
+            (lo + 0.4 * span, 0.1),
+            (hi, 0.8),
+        ],
+    }
+}
+
+fn default_color(range: (u16, u16)) -> Vec<(f64, [u8; 3])> {
+    let (lo, hi) = (range.0 as f64, range.1 as f64);
+    vec![
+        (lo, [0x80, 0x50, 0x40]),
+        (lo + 0.5 * (hi - lo).max(1.0), [0xe0, 0xb0, 0x90]),
+        (hi.max(lo + 1.0), [0xff, 0xff, 0xf0]),
+    ]
+}
+
+fn prepare(path: &PathBuf, o: &RenderOpts) -> Result<Prepared, Box<dyn Error>> {
+    let (width, height) = tfspec::parse_size(&o.size)?;
+    let prefer = if o.u16 {
+        volume::Prefer::U16
+    } else {
+        volume::Prefer::U8
+    };
+    let raw = volume::load_volume_with(path, prefer)?;
+    let range = match &raw.voxels {
+        volume::Voxels::U8(_) => (0, 255),
+        volume::Voxels::U16(d) => (
+            d.iter().copied().min().unwrap_or(0),
+            d.iter().copied().max().unwrap_or(0),
+        ),
+    };
+    let opacity = match &o.opacity {
+        Some(s) => tfspec::parse_opacity(s)?,
+        None => default_opacity(range, o.mode),
+    };
+    let gradient = o
+        .gradient_opacity
+        .as_deref()
+        .map(tfspec::parse_opacity)
+        .transpose()?;
+    let color_pts = match &o.color {
+        Some(s) => tfspec::parse_color(s)?,
+        None => default_color(range),
+    };
+    let class = Classification {
+        opacity,
+        gradient,
+        min_opacity: o.min_opacity,
+    };
+    let encoded = scene::encode(&raw, &class)?;
+    let color = scene::color_table(&color_pts, encoded.range)?;
+    let lighting = if o.shading {
+        let mut l = Lighting {
+            ka: o.ka,
+            kd: o.kd,
+            ks: o.ks,
+            shininess: o.shininess,
+            ..Lighting::default()
+        };
+        if !o.light.is_empty() {
+            l.lights.clear();
+            for s in &o.light {
+                let d = tfspec::parse_vec3(s)?;
+                l.lights
+                    .push(Light {
+                        direction: d,
+                        color: [1.0; 3],
+                    })
+                    .map_err(|_| "at most 4 lights (--light) are supported")?;
+            }
+        }
+        Some(l)
+    } else {
+        None
+    };
+    let look = Look {
+        mode: match o.mode {
+            ModeArg::Composite => Mode::Composite,
+            ModeArg::Mip => Mode::Mip,
+        },
+        color,
+        lighting,
+        ert_threshold: o.ert,
+    };
+    let camera = Camera {
+        rotate_x: o.rotate_x,
+        rotate_y: o.rotate_y,
+        width,
+        height,
+    };
+    Ok(Prepared {
+        raw,
+        encoded,
+        look,
+        camera,
+    })
+}
+
+fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
+    match cli.command {
+        Command::Render {
+            volume,
+            output,
+            opts,
+        } => {
+            let p = prepare(&volume, &opts)?;
+            let mut src = p.encoded.volume()?;
+            let mut r = Renderer::new(&p.encoded.grid, p.camera.width);
+            let frame = r.render(&mut src, &p.camera, &p.look)?;
+            scene::save_png(&output, p.camera.width, p.camera.height, &frame)
+                .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
+            eprintln!(
+                "{}: {}x{}x{} -> {} ({}x{})",
+                p.raw.name,
+                p.raw.dims[0],
+                p.raw.dims[1],
+                p.raw.dims[2],
+                output.display(),
+                p.camera.width,
+                p.camera.height
+            );
+        }
+        Command::Bench {
+            volume,
+            frames,
+            opts,
+        } => {
+            if frames == 0 {
+                return Err("--frames must be at least 1".into());
+            }
+            let t0 = Instant::now();
+            let p = prepare(&volume, &opts)?;
+            let preprocess = t0.elapsed().as_secs_f64() * 1e3;
+            let mut src = p.encoded.volume()?;
+            let mut r = Renderer::new(&p.encoded.grid, p.camera.width);
+            let mut times = Vec::with_capacity(frames);
+            for i in 0..frames {
+                let mut cam = p.camera;
+                cam.rotate_y += 360.0 * i as f64 / frames as f64;
+                let t = Instant::now();
+                let frame = r.render(&mut src, &cam, &p.look)?;
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+                std::hint::black_box(frame);
+            }
+            times.sort_by(f64::total_cmp);
+            println!(
+                "volume={} dims={}x{}x{} image={}x{} visible_voxels={} rle_bytes={}",
+                p.raw.name,
+                p.raw.dims[0],
+                p.raw.dims[1],
+                p.raw.dims[2],
+                p.camera.width,
+                p.camera.height,
+                p.encoded.visible_voxels(),
+                p.encoded.bytes()
+            );
+            println!(
+                "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
+                frames,
+                times[frames / 2],
+                times[0],
+                preprocess
+            );
+        }
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,201 @@
+//! Owned buffers around the core: classify and run-length encode a loaded volume, and
+//! render frames of it into an RGBA frame buffer.
+
+use crate::volume::{RawVolume, Voxels};
+use shearwarp_core::classify::{self, ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel};
+use shearwarp_core::composite::{self, Mode, Rgba};
+use shearwarp_core::render::{self, Settings, Workspace};
+use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
+use shearwarp_core::shade::{Lighting, ShadeTable};
+use shearwarp_core::source::{RleVolume, SliceSource};
+use shearwarp_core::view::{self, Camera};
+use shearwarp_core::warp::FrameBuffer;
+use shearwarp_core::Error;
+
+/// Everything about appearance that is decided when the volume is encoded.
+#[derive(Clone, Debug)]
+pub struct Classification {
+    /// Opacity transfer function `(raw value, opacity per smallest spacing)`.
+    pub opacity: Vec<(f64, f64)>,
+    /// Optional opacity factor over gradient magnitude.
+    pub gradient: Option<Vec<(f64, f64)>>,
+    /// Voxels with opacity at or below this (0..1) are stored as transparent.
+    pub min_opacity: f64,
+}
+
+/// The classified volume, run-length encoded along all three axes.
+pub struct Encoded {
+    /// Geometry.
+    pub grid: Grid,
+    /// Raw value range that the 8-bit scalars were quantised over.
+    pub range: (u16, u16),
+    runs: [Vec<u8>; 3],
+    voxels: [Vec<Voxel>; 3],
+    scans: [Vec<ScanIndex>; 3],
+}
+
+fn opacity_points(p: &[(f64, f64)]) -> Vec<(f64, [f64; 1])> {
+    p.iter().map(|&(v, a)| (v, [a])).collect()
+}
+
+/// Classifies and encodes `raw`.
+pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error> {
+    let grid = Grid::new(raw.dims, raw.spacing)?;
+    let scalars = match &raw.voxels {
+        Voxels::U8(d) => Scalars::U8(d),
+        Voxels::U16(d) => Scalars::U16(d),
+    };
+    let pts = opacity_points(&class.opacity);
+    let tf = OpacityTf::new(&pts)?;
+    let mut table = vec![0u8; scalars.value_count()];
+    tf.build_table(&mut table);
+    let gpts = class.gradient.as_deref().map(opacity_points);
+    let gtable = match &gpts {
+        Some(g) => Some(GradientTf::new(g)?.build_table()),
+        None => None,
+    };
+    if !(0.0..1.0).contains(&class.min_opacity) {
+        return Err(Error::BadParameter {
+            reason: "minimum opacity must be in [0, 1)",
+        });
+    }
+    let threshold = (class.min_opacity * 255.0).floor() as u8;
+    let mut dense = vec![Voxel::default(); grid.voxel_count()];
+    classify::classify(&grid, scalars, &table, gtable.as_ref(), &mut dense)?;
+    let mut runs: [Vec<u8>; 3] = Default::default();
+    let mut voxels: [Vec<Voxel>; 3] = Default::default();
+    let mut scans: [Vec<ScanIndex>; 3] = Default::default();
+    for axis in Axis::ALL {
+        let a = axis as usize;
+        let sz = rle::measure(&dense, &grid, axis, threshold)?;
+        runs[a] = vec![0; sz.runs];
+        voxels[a] = vec![Voxel::default(); sz.voxels];
+        scans[a] = vec![ScanIndex::default(); sz.scans];
+        rle::encode(&dense, &grid, axis, threshold, &mut runs[a], &mut voxels[a], &mut scans[a])?;
+    }
+    Ok(Encoded {
+        grid,
+        range: scalars.range(),
+        runs,
+        voxels,
+        scans,
+    })
+}
+
+impl Encoded {
+    /// Borrows the encoded copies as a renderable source.
+    pub fn volume(&self) -> Result<RleVolume<'_>, Error> {
+        let axis = |a: Axis| {
+            let i = a as usize;
+            RleAxis::new(self.grid.dims, a, &self.runs[i], &self.voxels[i], &self.scans[i])
+        };
+        RleVolume::new(self.grid, [axis(Axis::X)?, axis(Axis::Y)?, axis(Axis::Z)?])
+    }
+
+    /// Non-transparent voxels stored (per axis copy).
+    pub fn visible_voxels(&self) -> usize {
+        self.voxels[2].len()
+    }
+
+    /// Total bytes of the three copies.
+    pub fn bytes(&self) -> usize {
+        (0..3)
+            .map(|a| self.runs[a].len() + 4 * self.voxels[a].len() + 8 * self.scans[a].len())
+            .sum()
+    }
+}
+
+/// Builds the colour table for data quantised over `range`.
+pub fn color_table(points: &[(f64, [u8; 3])], range: (u16, u16)) -> Result<ColorTable, Error> {
+    let pts: Vec<(f64, [f64; 3])> = points
+        .iter()
+        .map(|&(v, c)| (v, c.map(|x| x as f64 / 255.0)))
+        .collect();
+    Ok(ColorTf::new(&pts)?.build_table(range))
+}
+
+/// Per-frame appearance.
+#[derive(Clone, Debug)]
+pub struct Look {
+    /// Compositing mode.
+    pub mode: Mode,
+    /// Colour table.
+    pub color: ColorTable,
+    /// Lighting, or `None` for unshaded.
+    pub lighting: Option<Lighting>,
+    /// Early-ray-termination threshold.
+    pub ert_threshold: f64,
+}
+
+/// Heap-allocated workspace sized for one volume, reused across frames.
+pub struct Renderer {
+    pixels: Vec<Rgba>,
+    links: Vec<u16>,
+    rows: Vec<Rgba>,
+    out_row: Vec<[u8; 4]>,
+    shade: Box<ShadeTable>,
+}
+
+impl Renderer {
+    /// Allocates for any view of `grid` at images up to `max_width` wide.
+    pub fn new(grid: &Grid, max_width: usize) -> Self {
+        let pix = view::max_intermediate_pixels(grid.dims);
+        let m = grid.dims.iter().copied().max().unwrap_or(1);
+        Renderer {
+            pixels: vec![[0; 4]; pix],
+            links: vec![0; pix],
+            rows: vec![[0; 4]; composite::row_buffer_len(m)],
+            out_row: vec![[0; 4]; max_width],
+            shade: Box::new(ShadeTable::UNSHADED),
+        }
+    }
+
+    /// Renders one frame of `source`; returns RGBA8 pixels, row-major.
+    pub fn render(
+        &mut self,
+        source: &mut impl SliceSource,
+        camera: &Camera,
+        look: &Look,
+    ) -> Result<Vec<[u8; 4]>, Error> {
+        if self.out_row.len() < camera.width {
+            self.out_row.resize(camera.width, [0; 4]);
+        }
+        let mut frame = vec![[0u8; 4]; camera.width * camera.height];
+        let settings = Settings {
+            mode: look.mode,
+            color: &look.color,
+            lighting: look.lighting.as_ref(),
+            ert_threshold: look.ert_threshold,
+        };
+        let mut ws = Workspace {
+            pixels: &mut self.pixels,
+            links: &mut self.links,
+            rows: &mut self.rows,
+            out_row: &mut self.out_row,
+            shade: &mut self.shade,
+        };
+        let mut sink = FrameBuffer {
+            width: camera.width,
+            pixels: &mut frame,
+        };
+        render::render(source, camera, &settings, &mut ws, &mut sink)?;
+        Ok(frame)
+    }
+}
+
+/// Writes RGBA8 pixels (premultiplied over black) as an RGB PNG.
+pub fn save_png(
+    path: &std::path::Path,
+    width: usize,
+    height: usize,
+    rgba: &[[u8; 4]],
+) -> Result<(), image::ImageError> {
+    let rgb: Vec<u8> = rgba.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
+    image::save_buffer(
+        path,
+        &rgb,
+        width as u32,
+        height as u32,
+        image::ExtendedColorType::Rgb8,
+    )
+}
