@@ -112,7 +112,10 @@ impl Grid {
                 reason: "more than 2^30 voxels",
             });
         }
-        if spacing.iter().any(|s| !s.is_finite() || *s <= 0.0 || *s > 1e6) {
+        if spacing
+            .iter()
+            .any(|s| !s.is_finite() || *s <= 0.0 || *s > 1e6)
+        {
             return Err(Error::BadSpacing);
         }
         Ok(Grid { dims, spacing })
@@ -230,10 +233,10 @@ impl<'a> ColorTf<'a> {
     /// Validates breakpoints: strictly increasing finite values, channels in `[0, 1]`.
     pub fn new(points: &'a [(f64, [f64; 3])]) -> Result<Self, Error> {
         check_positions(points.iter().map(|p| p.0))?;
-        if points
-            .iter()
-            .any(|p| p.1.iter().any(|c| !(c.is_finite() && (0.0..=1.0).contains(c))))
-        {
+        if points.iter().any(|p| {
+            p.1.iter()
+                .any(|c| !(c.is_finite() && (0.0..=1.0).contains(c)))
+        }) {
             return Err(Error::BadTransferFunction {
                 reason: "a colour channel is outside 0..1",
             });
@@ -440,7 +443,11 @@ mod tests {
         let gt = GradientTf::new(&pts).unwrap().build_table();
         classify(&grid, Scalars::U8(&data_y), &table, Some(&gt), &mut out).unwrap();
         // Magnitude 10 per voxel = 10 per s_min along y → factor 0.25.
-        assert!((out[4 + 1].opacity as i32 - 64).abs() <= 2, "{}", out[5].opacity);
+        assert!(
+            (out[4 + 1].opacity as i32 - 64).abs() <= 2,
+            "{}",
+            out[5].opacity
+        );
     }
 
     #[test]

@@ -55,7 +55,7 @@ pub struct SliceTables<'a> {
 pub struct Intermediate<'a> {
     width: usize,
     height: usize,
-    pixels: &'a mut [Rgba],
+    pub(crate) pixels: &'a mut [Rgba],
     links: &'a mut [u16],
 }
 
@@ -313,10 +313,12 @@ pub fn composite_slice(
         return Ok(());
     }
     let empty: (&[u8], &[Voxel]) = (&[], &[]);
-    let row_of = |j: i64| if j >= 0 && (j as usize) < nj {
-        slice.scanline(j as usize)
-    } else {
-        empty
+    let row_of = |j: i64| {
+        if j >= 0 && (j as usize) < nj {
+            slice.scanline(j as usize)
+        } else {
+            empty
+        }
     };
     let mut top_runs = row_of(jt_lo).0;
     let first = row_of(jt_lo);

@@ -48,7 +48,10 @@ impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Error::BufferTooSmall { what, needed, got } => {
-                write!(f, "buffer `{what}` too small: need {needed} elements, got {got}")
+                write!(
+                    f,
+                    "buffer `{what}` too small: need {needed} elements, got {got}"
+                )
             }
             Error::BadDimensions { reason } => write!(f, "bad volume dimensions: {reason}"),
             Error::BadSpacing => write!(f, "voxel spacing must be positive and finite"),

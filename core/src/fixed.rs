@@ -19,11 +19,7 @@ pub const fn mul(a: u32, b: u32) -> u32 {
 
 /// Converts a float in `[0, 1]` (clamped) to Q15, rounding to nearest.
 pub fn from_f64(x: f64) -> u32 {
-    let c = if x.is_nan() {
-        0.0
-    } else {
-        x.clamp(0.0, 1.0)
-    };
+    let c = if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
     (c * ONE as f64 + 0.5) as u32
 }
 

@@ -105,7 +105,11 @@ pub fn render<S: SliceSource, P: PixelSink>(
     }
     let [iw, ih] = view.intermediate;
     need("out row", camera.width, ws.out_row.len())?;
-    need("row buffer", composite::row_buffer_len(view.dims[0]), ws.rows.len())?;
+    need(
+        "row buffer",
+        composite::row_buffer_len(view.dims[0]),
+        ws.rows.len(),
+    )?;
     match settings.lighting {
         Some(l) => ws.shade.fill(l, &view.rotation)?,
         None => *ws.shade = ShadeTable::UNSHADED,
@@ -151,4 +155,304 @@ pub const fn workspace_bytes(dims: [usize; 3], width: usize) -> usize {
         + composite::row_buffer_len(m) * 8
         + width * 4
         + core::mem::size_of::<ShadeTable>()
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::classify::{self, Grid, OpacityTf, Scalars, Voxel};
+    use crate::composite::Intermediate;
+    use crate::fixed::ONE;
+    use crate::rle::{self, Axis, RleAxis, ScanIndex};
+    use crate::shade::Lighting;
+    use crate::source::RleVolume;
+    use crate::warp::FrameBuffer;
+    use std::vec;
+    use std::vec::Vec;
+
+    /// A lumpy test volume: two blobs plus noise, so runs start and stop everywhere.
+    fn volume(dims: [usize; 3]) -> Vec<u8> {
+        let mut s = 12345u32;
+        let mut out = Vec::new();
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    s = s.wrapping_mul(1103515245).wrapping_add(12345);
+                    let p = [x, y, z].map(|c| c as f64);
+                    let c = dims.map(|d| d as f64 * 0.4);
+                    let r2 = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2);
+                    let blob = (220.0 - 12.0 * r2.sqrt()).max(0.0);
+                    let noise = if (s >> 27) == 0 { 150.0 } else { 0.0 };
+                    out.push((blob + noise).min(255.0) as u8);
+                }
+            }
+        }
+        out
+    }
+
+    /// Composites every pixel of every slice from the dense classified volume with the
+    /// same fixed-point arithmetic but no run-length or opaque-pixel skipping.
+    fn dense_composite(
+        dense: &[Voxel],
+        grid: &Grid,
+        view: &Factorization,
+        tables: &SliceTables<'_>,
+        img: &mut Intermediate<'_>,
+    ) {
+        let p = view.axis.permutation();
+        let [ni, nj, nk] = view.dims;
+        let stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
+        let get = |i: i64, j: i64, k: usize| -> Rgba {
+            if i < 0 || j < 0 || i >= ni as i64 || j >= nj as i64 {
+                return [0; 4];
+            }
+            let v = dense[i as usize * stride[p[0]] + j as usize * stride[p[1]] + k * stride[p[2]]];
+            if v.opacity <= 3 {
+                return [0; 4];
+            }
+            let a = tables.opacity[v.opacity as usize] as u32;
+            let c = tables
+                .shade
+                .shade(v.normal, tables.color[v.scalar as usize]);
+            [
+                fixed::mul(c[0], a) as u16,
+                fixed::mul(c[1], a) as u16,
+                fixed::mul(c[2], a) as u16,
+                a as u16,
+            ]
+        };
+        let (w, h) = (img.width(), img.height());
+        for idx in 0..nk {
+            let k = view.slice_at(idx);
+            let [ou, ov] = view.slice_offset(k);
+            let wt = fixed::bilinear_weights(ou.f, ov.f);
+            for v in 0..h {
+                for u in 0..w {
+                    let px = &mut img.pixels[v * w + u];
+                    if px[3] as u32 >= tables.ert {
+                        continue;
+                    }
+                    let il = u as i64 - ou.n as i64 - 1;
+                    let jt = v as i64 - ov.n as i64 - 1;
+                    let taps = [
+                        get(il, jt, k),
+                        get(il + 1, jt, k),
+                        get(il, jt + 1, k),
+                        get(il + 1, jt + 1, k),
+                    ];
+                    let mut s = [0u32; 4];
+                    for c in 0..4 {
+                        s[c] = (wt[0] * taps[0][c] as u32
+                            + wt[1] * taps[1][c] as u32
+                            + wt[2] * taps[2][c] as u32
+                            + wt[3] * taps[3][c] as u32
+                            + (1 << 14))
+                            >> 15;
+                    }
+                    if s[3] != 0 {
+                        let tr = ONE - px[3] as u32;
+                        for c in 0..4 {
+                            px[c] = (px[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn rle_renderer_equals_dense_compositing_for_many_views() {
+        let grid = Grid::new([23, 17, 29], [1.0, 1.3, 0.8]).unwrap();
+        let data = volume(grid.dims);
+        let pts = [(40.0, [0.0]), (120.0, [0.6]), (255.0, [1.0])];
+        let mut table = [0u8; 256];
+        OpacityTf::new(&pts).unwrap().build_table(&mut table);
+        let mut dense = vec![Voxel::default(); grid.voxel_count()];
+        classify::classify(&grid, Scalars::U8(&data), &table, None, &mut dense).unwrap();
+        let threshold = 3;
+        let mut store: Vec<(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)> = Vec::new();
+        for axis in Axis::ALL {
+            let sz = rle::measure(&dense, &grid, axis, threshold).unwrap();
+            let mut r = vec![0; sz.runs];
+            let mut v = vec![Voxel::default(); sz.voxels];
+            let mut s = vec![ScanIndex::default(); sz.scans];
+            rle::encode(&dense, &grid, axis, threshold, &mut r, &mut v, &mut s).unwrap();
+            store.push((r, v, s));
+        }
+        let axes: Vec<RleAxis<'_>> = Axis::ALL
+            .iter()
+            .map(|&a| {
+                let (r, v, s) = &store[a as usize];
+                RleAxis::new(grid.dims, a, r, v, s).unwrap()
+            })
+            .collect();
+        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let color: ColorTable = core::array::from_fn(|q| {
+            let x = (q as u32 * ONE / 255) as u16;
+            [x, (ONE as u16) - x, ONE as u16 / 2]
+        });
+        let lighting = Lighting::default();
+        let mut shade = ShadeTable::UNSHADED;
+        let mut checked = 0;
+        for (rx, ry) in [
+            (0.0, 0.0),
+            (20.0, 35.0),
+            (-60.0, 10.0),
+            (90.0, 0.0),
+            (10.0, 100.0),
+            (45.0, 45.0),
+            (170.0, -80.0),
+        ] {
+            for (ert, lit) in [(0.95, true), (1.0, false), (0.5, true)] {
+                let cam = Camera {
+                    rotate_x: rx,
+                    rotate_y: ry,
+                    width: 48,
+                    height: 40,
+                };
+                let settings = Settings {
+                    mode: Mode::Composite,
+                    color: &color,
+                    lighting: if lit { Some(&lighting) } else { None },
+                    ert_threshold: ert,
+                };
+                let view = Factorization::new(&grid, &cam).unwrap();
+                let pix = view::max_intermediate_pixels(grid.dims);
+                let mut pixels = vec![[0u16; 4]; pix];
+                let mut links = vec![0u16; pix];
+                let mut rows = vec![[0u16; 4]; 64];
+                let mut out_row = [[0u8; 4]; 48];
+                let mut frame = vec![[0u8; 4]; 48 * 40];
+                {
+                    let mut ws = Workspace {
+                        pixels: &mut pixels,
+                        links: &mut links,
+                        rows: &mut rows,
+                        out_row: &mut out_row,
+                        shade: &mut shade,
+                    };
+                    let mut sink = FrameBuffer {
+                        width: 48,
+                        pixels: &mut frame,
+                    };
+                    render(&mut vol, &cam, &settings, &mut ws, &mut sink).unwrap();
+                }
+                // Dense path with the same tables.
+                let opacity = classify::opacity_correction(view.step_ratio);
+                let tables = SliceTables {
+                    opacity: &opacity,
+                    color: &color,
+                    shade: &shade,
+                    mode: Mode::Composite,
+                    ert: if ert >= 1.0 {
+                        ONE + 1
+                    } else {
+                        fixed::from_f64(ert)
+                    },
+                };
+                let [iw, ih] = view.intermediate;
+                let mut p2 = vec![[0u16; 4]; iw * ih];
+                let mut l2 = vec![0u16; iw * ih];
+                let mut img = Intermediate::new(iw, ih, &mut p2, &mut l2).unwrap();
+                dense_composite(&dense, &grid, &view, &tables, &mut img);
+                let mut frame2 = vec![[0u8; 4]; 48 * 40];
+                let mut sink2 = FrameBuffer {
+                    width: 48,
+                    pixels: &mut frame2,
+                };
+                warp::warp(&img, &view, &mut out_row, &mut sink2).unwrap();
+                assert_eq!(frame, frame2, "view {rx} {ry} ert {ert}");
+                assert!(
+                    frame.iter().any(|p| p[3] > 100),
+                    "view {rx} {ry} renders something"
+                );
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 21);
+    }
+
+    #[test]
+    fn small_buffers_are_errors_not_panics() {
+        let grid = Grid::new([4, 4, 4], [1.0; 3]).unwrap();
+        let dense = [Voxel {
+            opacity: 200,
+            scalar: 100,
+            normal: 0,
+        }; 64];
+        let mut r = [0u8; 64];
+        let mut v = [Voxel::default(); 64];
+        let mut s = [ScanIndex::default(); 17];
+        let a = rle::encode(&dense, &grid, Axis::Z, 0, &mut r, &mut v, &mut s).unwrap();
+        let mut r2 = [0u8; 64];
+        let mut v2 = [Voxel::default(); 64];
+        let mut s2 = [ScanIndex::default(); 17];
+        let b = rle::encode(&dense, &grid, Axis::Y, 0, &mut r2, &mut v2, &mut s2).unwrap();
+        let mut r3 = [0u8; 64];
+        let mut v3 = [Voxel::default(); 64];
+        let mut s3 = [ScanIndex::default(); 17];
+        let c = rle::encode(&dense, &grid, Axis::X, 0, &mut r3, &mut v3, &mut s3).unwrap();
+        let mut vol = RleVolume::new(grid, [c, b, a]).unwrap();
+        let color = [[ONE as u16; 3]; 256];
+        let settings = Settings {
+            mode: Mode::Composite,
+            color: &color,
+            lighting: None,
+            ert_threshold: 0.95,
+        };
+        let cam = Camera {
+            rotate_x: 10.0,
+            rotate_y: 20.0,
+            width: 16,
+            height: 16,
+        };
+        let mut ws_full = StaticWorkspace::<200, 12, 16>::new();
+        let mut frame = [[0u8; 4]; 256];
+        let mut sink = FrameBuffer {
+            width: 16,
+            pixels: &mut frame,
+        };
+        assert!(render(
+            &mut vol,
+            &cam,
+            &settings,
+            &mut ws_full.workspace(),
+            &mut sink
+        )
+        .is_ok());
+        let mut small_pix = StaticWorkspace::<20, 12, 16>::new();
+        assert!(matches!(
+            render(
+                &mut vol,
+                &cam,
+                &settings,
+                &mut small_pix.workspace(),
+                &mut sink
+            ),
+            Err(Error::BufferTooSmall { .. })
+        ));
+        let mut small_row = StaticWorkspace::<200, 12, 8>::new();
+        assert!(render(
+            &mut vol,
+            &cam,
+            &settings,
+            &mut small_row.workspace(),
+            &mut sink
+        )
+        .is_err());
+        let mut small_frame = [[0u8; 4]; 100];
+        let mut sink2 = FrameBuffer {
+            width: 16,
+            pixels: &mut small_frame,
+        };
+        assert!(render(
+            &mut vol,
+            &cam,
+            &settings,
+            &mut ws_full.workspace(),
+            &mut sink2
+        )
+        .is_err());
+    }
 }

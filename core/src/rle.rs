@@ -145,7 +145,12 @@ impl RunWriter<'_> {
 }
 
 /// Counts the arrays needed to encode `dense` along `axis` with opacity `threshold`.
-pub fn measure(dense: &[Voxel], grid: &Grid, axis: Axis, threshold: u8) -> Result<AxisSizes, Error> {
+pub fn measure(
+    dense: &[Voxel],
+    grid: &Grid,
+    axis: Axis,
+    threshold: u8,
+) -> Result<AxisSizes, Error> {
     need("dense voxels", grid.voxel_count(), dense.len())?;
     let mut w = RunWriter {
         runs: None,
@@ -400,7 +405,12 @@ impl<'a> RleSlice<'a> {
             return Err(bad);
         }
         for w in self.scans.windows(2) {
-            check_scanline(self.ni, self.runs, rel(w[0]).ok_or(bad)?, rel(w[1]).ok_or(bad)?)?;
+            check_scanline(
+                self.ni,
+                self.runs,
+                rel(w[0]).ok_or(bad)?,
+                rel(w[1]).ok_or(bad)?,
+            )?;
         }
         Ok(())
     }
@@ -509,17 +519,26 @@ mod tests {
     fn malformed_streams_are_rejected() {
         let dims = [4, 1, 1];
         let v = [Voxel::default(); 2];
-        let ok = [ScanIndex { run: 0, voxel: 0 }, ScanIndex { run: 4, voxel: 2 }];
+        let ok = [
+            ScanIndex { run: 0, voxel: 0 },
+            ScanIndex { run: 4, voxel: 2 },
+        ];
         assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &ok).is_ok());
         // Wrong sum.
         assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 2], &v, &ok).is_err());
         // Odd run count.
-        let odd = [ScanIndex { run: 0, voxel: 0 }, ScanIndex { run: 3, voxel: 2 }];
+        let odd = [
+            ScanIndex { run: 0, voxel: 0 },
+            ScanIndex { run: 3, voxel: 2 },
+        ];
         assert!(RleAxis::new(dims, Axis::Z, &[2, 1, 1], &v, &odd).is_err());
         // Voxel count mismatch.
         assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 2, 0], &v, &ok).is_err());
         // Index past the arrays.
-        let far = [ScanIndex { run: 0, voxel: 0 }, ScanIndex { run: 9, voxel: 2 }];
+        let far = [
+            ScanIndex { run: 0, voxel: 0 },
+            ScanIndex { run: 9, voxel: 2 },
+        ];
         assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &far).is_err());
         // Wrong index length.
         assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &ok[..1]).is_err());

@@ -78,7 +78,10 @@ impl Lighting {
                     reason: "a light direction is zero or not finite",
                 });
             }
-            if l.color.iter().any(|c| !(c.is_finite() && (0.0..=1.0).contains(c))) {
+            if l.color
+                .iter()
+                .any(|c| !(c.is_finite() && (0.0..=1.0).contains(c)))
+            {
                 return Err(Error::BadParameter {
                     reason: "a light colour is outside 0..1",
                 });
@@ -140,11 +143,7 @@ impl ShadeTable {
             match normal::decode(code as u16) {
                 Some(g) => {
                     // Normal = −gradient, rotated into camera space.
-                    let n = [
-                        -dot(rot[0], g),
-                        -dot(rot[1], g),
-                        -dot(rot[2], g),
-                    ];
+                    let n = [-dot(rot[0], g), -dot(rot[1], g), -dot(rot[2], g)];
                     for (d, h, c) in &lights {
                         let diff = lighting.kd * libm::fabs(dot(n, *d));
                         let spec = if lighting.ks > 0.0 {

@@ -176,10 +176,7 @@ impl Factorization {
                 reason: "degenerate view (singular warp)",
             });
         }
-        let inv = [
-            [cj[1] / det, -cj[0] / det],
-            [-ci[1] / det, ci[0] / det],
-        ];
+        let inv = [[cj[1] / det, -cj[0] / det], [-ci[1] / det, ci[0] / det]];
         let row = |r: usize, t: f64| -> [f64; 3] {
             [
                 inv[r][0],
@@ -295,9 +292,7 @@ mod tests {
                     assert!(((ni as i32) + o[0].n) < f.intermediate[0] as i32 + 1);
                     assert!(((nj as i32) + o[1].n) < f.intermediate[1] as i32 + 1);
                 }
-                assert!(
-                    f.intermediate[0] * f.intermediate[1] <= max_intermediate_pixels(g.dims)
-                );
+                assert!(f.intermediate[0] * f.intermediate[1] <= max_intermediate_pixels(g.dims));
             }
         }
     }
