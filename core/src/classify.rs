@@ -477,8 +477,8 @@ mod tests {
     #[test]
     fn opacity_correction_is_identity_at_ratio_one_and_monotone() {
         let t = opacity_correction(1.0);
-        for a in 0..256 {
-            assert!((t[a] as i32 - fixed::from_u8(a as u8) as i32).abs() <= 1);
+        for (a, &v) in t.iter().enumerate() {
+            assert!((v as i32 - fixed::from_u8(a as u8) as i32).abs() <= 1);
         }
         let t2 = opacity_correction(2.0);
         assert!(t2.windows(2).all(|w| w[0] <= w[1]));

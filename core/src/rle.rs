@@ -334,7 +334,7 @@ fn check_scanline(ni: usize, runs: &[u8], a: ScanIndex, b: ScanIndex) -> Result<
         });
     }
     let r = &runs[a.run as usize..b.run as usize];
-    if r.len() % 2 != 0 {
+    if !r.len().is_multiple_of(2) {
         return Err(Error::MalformedRle {
             reason: "a scanline has an odd number of runs",
         });

@@ -233,8 +233,10 @@ mod tests {
         l.lights[0].direction = [0.0; 3];
         let mut t = ShadeTable::UNSHADED.clone();
         assert!(t.fill(&l, &ID).is_err());
-        let mut l = Lighting::default();
-        l.ka = f64::NAN;
+        let l = Lighting {
+            ka: f64::NAN,
+            ..Lighting::default()
+        };
         assert!(t.fill(&l, &ID).is_err());
     }
 

@@ -1,1 +1,4 @@
-
+pub mod cases;
+pub mod metrics;
+pub mod reference;
+pub mod synth;

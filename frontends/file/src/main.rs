@@ -134,7 +134,7 @@ fn default_color(range: (u16, u16)) -> Vec<(f64, [u8; 3])> {
     ]
 }
 
-fn prepare(path: &PathBuf, o: &RenderOpts) -> Result<Prepared, Box<dyn Error>> {
+fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn Error>> {
     let (width, height) = tfspec::parse_size(&o.size)?;
     let prefer = if o.u16 {
         volume::Prefer::U16

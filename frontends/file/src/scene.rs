@@ -2,7 +2,9 @@
 //! render frames of it into an RGBA frame buffer.
 
 use crate::volume::{RawVolume, Voxels};
-use shearwarp_core::classify::{self, ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel};
+use shearwarp_core::classify::{
+    self, ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel,
+};
 use shearwarp_core::composite::{self, Mode, Rgba};
 use shearwarp_core::render::{self, Settings, Workspace};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
@@ -71,7 +73,15 @@ pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error>
         runs[a] = vec![0; sz.runs];
         voxels[a] = vec![Voxel::default(); sz.voxels];
         scans[a] = vec![ScanIndex::default(); sz.scans];
-        rle::encode(&dense, &grid, axis, threshold, &mut runs[a], &mut voxels[a], &mut scans[a])?;
+        rle::encode(
+            &dense,
+            &grid,
+            axis,
+            threshold,
+            &mut runs[a],
+            &mut voxels[a],
+            &mut scans[a],
+        )?;
     }
     Ok(Encoded {
         grid,
@@ -87,7 +97,13 @@ impl Encoded {
     pub fn volume(&self) -> Result<RleVolume<'_>, Error> {
         let axis = |a: Axis| {
             let i = a as usize;
-            RleAxis::new(self.grid.dims, a, &self.runs[i], &self.voxels[i], &self.scans[i])
+            RleAxis::new(
+                self.grid.dims,
+                a,
+                &self.runs[i],
+                &self.voxels[i],
+                &self.scans[i],
+            )
         };
         RleVolume::new(self.grid, [axis(Axis::X)?, axis(Axis::Y)?, axis(Axis::Z)?])
     }

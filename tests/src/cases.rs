@@ -1,0 +1,339 @@
+//! The golden cases: each volume, transfer function and view that the golden test renders
+//! with both the shear-warp renderer and the reference ray caster.
+
+use crate::metrics;
+use crate::reference::{self, RefMode, RefShading, RefTf, RefView, RefVolume};
+use crate::synth;
+use shearwarp_core::composite::Mode;
+use shearwarp_core::shade::Lighting;
+use shearwarp_core::view::Camera;
+use shearwarp_file::scene::{self, Classification, Look, Renderer};
+use shearwarp_file::volume::{self, RawVolume, Voxels};
+use std::path::PathBuf;
+
+/// Where a case's volume comes from.
+#[derive(Clone, Copy, Debug)]
+pub enum Vol {
+    /// Generated spheres, n³, spacing 1.
+    Spheres(usize),
+    /// Generated Marschner–Lobb signal, n³, spacing 1.
+    MarschnerLobb(usize),
+    /// Generated box with anisotropic spacing (1.0, 2.0, 0.5).
+    AnisoBox,
+    /// A sidecar file under `fixtures/`.
+    Fixture(&'static str),
+}
+
+/// One golden case.
+#[derive(Clone, Copy, Debug)]
+pub struct Case {
+    /// File stem of the golden image.
+    pub name: &'static str,
+    /// Volume.
+    pub vol: Vol,
+    /// Opacity transfer function.
+    pub opacity: &'static [(f64, f64)],
+    /// Colour transfer function.
+    pub color: &'static [(f64, [u8; 3])],
+    /// Shade with the default lighting.
+    pub shading: bool,
+    /// Compositing or MIP.
+    pub mode: Mode,
+    /// Rotation about X, degrees.
+    pub rx: f64,
+    /// Rotation about Y, degrees.
+    pub ry: f64,
+    /// Image size.
+    pub size: usize,
+    /// Lowest acceptable PSNR against the reference, dB.
+    pub min_psnr: f64,
+}
+
+const SPHERE_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (60.0, 0.0), (100.0, 0.5), (255.0, 0.9)];
+const SPHERE_COLOR: &[(f64, [u8; 3])] = &[
+    (0.0, [0, 0, 0]),
+    (80.0, [255, 80, 40]),
+    (160.0, [60, 200, 90]),
+    (240.0, [80, 120, 255]),
+];
+const ML_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (110.0, 0.0), (128.0, 0.25), (146.0, 0.0)];
+const ML_COLOR: &[(f64, [u8; 3])] = &[(0.0, [255, 255, 255]), (255.0, [255, 255, 255])];
+const HEAD_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (40.0, 0.0), (90.0, 0.15), (255.0, 0.9)];
+const HEAD_COLOR: &[(f64, [u8; 3])] = &[
+    (0.0, [128, 80, 64]),
+    (128.0, [224, 176, 144]),
+    (255.0, [255, 255, 240]),
+];
+const BOX_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (100.0, 0.0), (200.0, 0.3)];
+const GREY: &[(f64, [u8; 3])] = &[(0.0, [0, 0, 0]), (255.0, [255, 255, 255])];
+const MIP_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (1.0, 1.0)];
+
+macro_rules! case {
+    ($name:expr, $vol:expr, $op:expr, $col:expr, $sh:expr, $mode:expr, $rx:expr, $ry:expr, $psnr:expr) => {
+        Case {
+            name: $name,
+            vol: $vol,
+            opacity: $op,
+            color: $col,
+            shading: $sh,
+            mode: $mode,
+            rx: $rx,
+            ry: $ry,
+            size: 128,
+            min_psnr: $psnr,
+        }
+    };
+}
+
+/// All golden cases. Views cover each principal axis (0/0 → z, 0/90 → x, 90/0 → y) and
+/// oblique 45° cases.
+pub const CASES: &[Case] = &[
+    case!(
+        "spheres_z",
+        Vol::Spheres(64),
+        SPHERE_OPACITY,
+        SPHERE_COLOR,
+        true,
+        Mode::Composite,
+        0.0,
+        0.0,
+        30.0
+    ),
+    case!(
+        "spheres_x",
+        Vol::Spheres(64),
+        SPHERE_OPACITY,
+        SPHERE_COLOR,
+        true,
+        Mode::Composite,
+        0.0,
+        90.0,
+        30.0
+    ),
+    case!(
+        "spheres_y",
+        Vol::Spheres(64),
+        SPHERE_OPACITY,
+        SPHERE_COLOR,
+        true,
+        Mode::Composite,
+        90.0,
+        0.0,
+        30.0
+    ),
+    case!(
+        "spheres_45_45",
+        Vol::Spheres(64),
+        SPHERE_OPACITY,
+        SPHERE_COLOR,
+        true,
+        Mode::Composite,
+        45.0,
+        45.0,
+        30.0
+    ),
+    case!(
+        "spheres_unshaded_30_m60",
+        Vol::Spheres(64),
+        SPHERE_OPACITY,
+        SPHERE_COLOR,
+        false,
+        Mode::Composite,
+        30.0,
+        -60.0,
+        30.0
+    ),
+    case!(
+        "ml_z",
+        Vol::MarschnerLobb(41),
+        ML_OPACITY,
+        ML_COLOR,
+        false,
+        Mode::Composite,
+        0.0,
+        0.0,
+        25.0
+    ),
+    case!(
+        "ml_20_45",
+        Vol::MarschnerLobb(41),
+        ML_OPACITY,
+        ML_COLOR,
+        true,
+        Mode::Composite,
+        20.0,
+        45.0,
+        25.0
+    ),
+    case!(
+        "box_aniso_30_30",
+        Vol::AnisoBox,
+        BOX_OPACITY,
+        GREY,
+        true,
+        Mode::Composite,
+        30.0,
+        30.0,
+        30.0
+    ),
+    case!(
+        "head64_face",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        HEAD_OPACITY,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        -90.0,
+        0.0,
+        25.0
+    ),
+    case!(
+        "head64_34",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        HEAD_OPACITY,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        -45.0,
+        -65.0,
+        25.0
+    ),
+    case!(
+        "head64_side",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        HEAD_OPACITY,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        0.0,
+        90.0,
+        25.0
+    ),
+    case!(
+        "head64_mip",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        MIP_OPACITY,
+        GREY,
+        false,
+        Mode::Mip,
+        -90.0,
+        0.0,
+        30.0
+    ),
+    case!(
+        "brain64_45",
+        Vol::Fixture("mr_brain_colin27_hires_64.json"),
+        HEAD_OPACITY,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        -45.0,
+        45.0,
+        25.0
+    ),
+    case!(
+        "pd64_mip_30",
+        Vol::Fixture("mr_pd_brain_series_64.json"),
+        MIP_OPACITY,
+        GREY,
+        false,
+        Mode::Mip,
+        30.0,
+        20.0,
+        30.0
+    ),
+];
+
+/// The workspace's `fixtures/` directory.
+pub fn fixtures_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../fixtures")
+}
+
+/// Directory of committed golden images.
+pub fn golden_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("golden/expected")
+}
+
+/// Loads or generates a case's volume.
+pub fn load(vol: Vol) -> RawVolume {
+    let gen = |name: &str, dims: [usize; 3], spacing: [f64; 3], data: Vec<u8>| RawVolume {
+        name: name.to_string(),
+        dims,
+        spacing,
+        voxels: Voxels::U8(data),
+    };
+    match vol {
+        Vol::Spheres(n) => gen("spheres", [n; 3], [1.0; 3], synth::spheres(n)),
+        Vol::MarschnerLobb(n) => gen("marschner_lobb", [n; 3], [1.0; 3], synth::marschner_lobb(n)),
+        Vol::AnisoBox => gen(
+            "box",
+            [40, 24, 64],
+            [1.0, 2.0, 0.5],
+            synth::ramp_box(40, 24, 64),
+        ),
+        Vol::Fixture(f) => volume::load_volume(&fixtures_dir().join(f))
+            .unwrap_or_else(|e| panic!("fixture {f}: {e}")),
+    }
+}
+
+/// Renders a case with the shear-warp renderer (RGB8, row-major).
+pub fn render_ours(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
+    let class = Classification {
+        opacity: case.opacity.to_vec(),
+        gradient: None,
+        min_opacity: 0.0,
+    };
+    let enc = scene::encode(raw, &class).expect("encode");
+    let look = Look {
+        mode: case.mode,
+        color: scene::color_table(case.color, enc.range).expect("colour"),
+        lighting: case.shading.then(Lighting::default),
+        ert_threshold: 0.95,
+    };
+    let cam = Camera {
+        rotate_x: case.rx,
+        rotate_y: case.ry,
+        width: case.size,
+        height: case.size,
+    };
+    let mut r = Renderer::new(&enc.grid, case.size);
+    let mut src = enc.volume().expect("volume");
+    let frame = r.render(&mut src, &cam, &look).expect("render");
+    frame.iter().map(|p| [p[0], p[1], p[2]]).collect()
+}
+
+/// Renders a case with the reference ray caster.
+pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
+    let vol = match &raw.voxels {
+        Voxels::U8(d) => RefVolume::from_u8(raw.dims, raw.spacing, d),
+        Voxels::U16(d) => RefVolume::from_u16(raw.dims, raw.spacing, d),
+    };
+    let l = Lighting::default();
+    let shading = RefShading {
+        ka: l.ka,
+        kd: l.kd,
+        ks: l.ks,
+        shininess: l.shininess,
+        lights: l.lights.iter().map(|x| x.direction).collect(),
+    };
+    let tf = RefTf {
+        opacity: case.opacity.to_vec(),
+        color: case
+            .color
+            .iter()
+            .map(|&(v, c)| (v, c.map(|x| x as f64 / 255.0)))
+            .collect(),
+    };
+    let mode = match case.mode {
+        Mode::Composite => RefMode::Composite,
+        Mode::Mip => RefMode::Mip,
+    };
+    let view = RefView {
+        rotate_x: case.rx,
+        rotate_y: case.ry,
+        width: case.size,
+        height: case.size,
+    };
+    let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
+    metrics::to_rgb8(&img)
+}
