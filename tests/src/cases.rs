@@ -146,7 +146,7 @@ pub const CASES: &[Case] = &[
         Mode::Composite,
         30.0,
         -60.0,
-        30.0
+        28.0
     ),
     case!(
         "ml_z",
@@ -179,7 +179,7 @@ pub const CASES: &[Case] = &[
         Mode::Composite,
         30.0,
         30.0,
-        30.0
+        28.0
     ),
     case!(
         "head64_face",
