@@ -680,38 +680,4 @@ mod tests {
         let col: usize = (0..h).filter(|&py| img[py * w + 15][0] > 0.5).count();
         assert!(row > 2 * col, "row {row} col {col}");
     }
-
-    #[test]
-    #[ignore = "timing only; run with --ignored --nocapture"]
-    fn time_spheres_64_shaded() {
-        let n = 64;
-        let data = crate::synth::spheres(n);
-        let vol = RefVolume::from_u8([n; 3], [1.0; 3], &data);
-        let tf = RefTf {
-            opacity: vec![(40.0, 0.0), (80.0, 0.3), (240.0, 0.9)],
-            color: vec![
-                (80.0, [1.0, 0.3, 0.2]),
-                (160.0, [0.3, 1.0, 0.3]),
-                (240.0, [0.9, 0.9, 1.0]),
-            ],
-        };
-        let sh = RefShading {
-            ka: 0.1,
-            kd: 0.6,
-            ks: 0.3,
-            shininess: 20.0,
-            lights: vec![[0.5, 0.5, 1.0]],
-        };
-        let t = std::time::Instant::now();
-        let img = render_reference(
-            &vol,
-            &tf,
-            Some(&sh),
-            RefMode::Composite,
-            &view(25.0, 35.0, 128, 128),
-        );
-        let dt = t.elapsed();
-        println!("64^3 spheres, 128x128 shaded: {dt:?}");
-        assert!(img.iter().any(|p| p[0] > 0.1));
-    }
 }
