@@ -51,10 +51,15 @@ pub struct SliceTables<'a> {
     pub ert: u32,
 }
 
-/// The intermediate image: pixels plus the opaque-pixel links.
+/// The intermediate image, or a band of its scanlines: pixels plus the opaque-pixel
+/// links. Bands let several threads composite disjoint scanline ranges of one frame into
+/// caller-owned memory (Lacroute 1995, ch. 6 partitions the intermediate image the same
+/// way).
 pub struct Intermediate<'a> {
     width: usize,
     height: usize,
+    row0: usize,
+    rows: usize,
     pub(crate) pixels: &'a mut [Rgba],
     links: &'a mut [u16],
 }
@@ -67,12 +72,30 @@ impl<'a> Intermediate<'a> {
         pixels: &'a mut [Rgba],
         links: &'a mut [u16],
     ) -> Result<Self, Error> {
+        Self::band(width, height, 0, height, pixels, links)
+    }
+
+    /// Scanlines `row0..row0 + rows` of a `width×height` intermediate image, stored in
+    /// buffers of at least `width·rows` entries (cleared here).
+    pub fn band(
+        width: usize,
+        height: usize,
+        row0: usize,
+        rows: usize,
+        pixels: &'a mut [Rgba],
+        links: &'a mut [u16],
+    ) -> Result<Self, Error> {
         if width >= u16::MAX as usize {
             return Err(Error::BadParameter {
                 reason: "intermediate image wider than 65534 pixels",
             });
         }
-        let n = width * height;
+        if row0 > height || rows > height - row0 {
+            return Err(Error::BadParameter {
+                reason: "band lies outside the intermediate image",
+            });
+        }
+        let n = width * rows;
         need("intermediate pixels", n, pixels.len())?;
         need("intermediate links", n, links.len())?;
         let pixels = &mut pixels[..n];
@@ -82,6 +105,8 @@ impl<'a> Intermediate<'a> {
         Ok(Intermediate {
             width,
             height,
+            row0,
+            rows,
             pixels,
             links,
         })
@@ -91,11 +116,15 @@ impl<'a> Intermediate<'a> {
     pub fn width(&self) -> usize {
         self.width
     }
-    /// Height in pixels.
+    /// Height of the whole intermediate image.
     pub fn height(&self) -> usize {
         self.height
     }
-    /// Pixels, row-major.
+    /// First scanline held.
+    pub fn first_row(&self) -> usize {
+        self.row0
+    }
+    /// Pixels of the held scanlines, row-major.
     pub fn pixels(&self) -> &[Rgba] {
         self.pixels
     }
@@ -270,9 +299,8 @@ impl Iterator for MergedSpans<'_> {
     }
 }
 
-/// Composites slice `k` into scanlines `bands.0..bands.1` of the intermediate image.
-/// `rows` must hold [`row_buffer_len`]`(ni)` entries and be all zero on the first call of
-/// a frame (the compositor leaves it zero when it returns).
+/// Composites slice `k` into the scanlines `img` holds. `rows` must hold
+/// [`row_buffer_len`]`(ni)` entries.
 pub fn composite_slice(
     img: &mut Intermediate<'_>,
     slice: &RleSlice<'_>,
@@ -280,7 +308,6 @@ pub fn composite_slice(
     view: &Factorization,
     tables: &SliceTables<'_>,
     rows: &mut [Rgba],
-    bands: (usize, usize),
 ) -> Result<(), Error> {
     let [ni, nj, _] = view.dims;
     if slice.ni != ni || slice.nj != nj {
@@ -305,8 +332,8 @@ pub fn composite_slice(
     let w = fixed::bilinear_weights(ou.f, ov.f);
     let width = img.width;
     // Scanline v reads voxel rows jt = v − n_v − 1 and jt + 1.
-    let band_lo = bands.0 as i64;
-    let band_hi = bands.1.min(img.height) as i64;
+    let band_lo = img.row0 as i64;
+    let band_hi = (img.row0 + img.rows) as i64;
     let jt_lo = (band_lo - ov.n as i64 - 1).max(-1);
     let jt_hi = (band_hi - ov.n as i64 - 1).min(nj as i64 - 1);
     if jt_lo > jt_hi {
@@ -327,8 +354,8 @@ pub fn composite_slice(
         let next = row_of(jt + 1);
         bot.fill(next.0, next.1, tables);
         let v = jt + ov.n as i64 + 1;
-        if v >= 0 && (v as usize) < img.height {
-            let line = v as usize * width;
+        if v >= band_lo && v < band_hi {
+            let line = (v as usize - img.row0) * width;
             let pixels = &mut img.pixels[line..line + width];
             let links = &mut img.links[line..line + width];
             let shift = ou.n as i64;

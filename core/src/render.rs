@@ -88,7 +88,95 @@ impl<const PIX: usize, const ROW: usize, const W: usize> Default for StaticWorks
     }
 }
 
-/// Renders one frame of `source` into `sink`.
+/// Per-frame state shared by every band of a frame: the factorization and the tables
+/// that do not live in caller buffers.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// The factored view.
+    pub view: Factorization,
+    /// Opacity correction for this view's sample distance, Q15 per stored opacity.
+    pub opacity: [u16; 256],
+    /// Early-ray-termination threshold, Q15.
+    pub ert: u32,
+    /// Compositing mode.
+    pub mode: Mode,
+}
+
+impl Frame {
+    /// Factors the view and builds the per-frame tables, filling `shade` for the
+    /// lighting (or with [`ShadeTable::UNSHADED`]).
+    pub fn new(
+        grid: &crate::classify::Grid,
+        camera: &Camera,
+        settings: &Settings<'_>,
+        shade: &mut ShadeTable,
+    ) -> Result<Self, Error> {
+        let view = Factorization::new(grid, camera)?;
+        if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
+            return Err(Error::BadParameter {
+                reason: "early-ray-termination threshold must be in (0, 1]",
+            });
+        }
+        match settings.lighting {
+            Some(l) => shade.fill(l, &view.rotation)?,
+            None => *shade = ShadeTable::UNSHADED,
+        }
+        // ERT at 1.0 must never trigger: put the threshold out of reach.
+        let ert = if settings.ert_threshold >= 1.0 {
+            fixed::ONE + 1
+        } else {
+            fixed::from_f64(settings.ert_threshold)
+        };
+        Ok(Frame {
+            opacity: crate::classify::opacity_correction(view.step_ratio),
+            view,
+            ert,
+            mode: settings.mode,
+        })
+    }
+
+    /// The tables the compositor reads.
+    pub fn tables<'a>(&'a self, color: &'a ColorTable, shade: &'a ShadeTable) -> SliceTables<'a> {
+        SliceTables {
+            opacity: &self.opacity,
+            color,
+            shade,
+            mode: self.mode,
+            ert: self.ert,
+        }
+    }
+}
+
+/// Composites every slice, front to back, into the scanlines `img` holds. Threads call
+/// this with disjoint bands of one frame, each with its own source handle and row buffer.
+pub fn composite_band<S: SliceSource>(
+    source: &mut S,
+    frame: &Frame,
+    tables: &SliceTables<'_>,
+    img: &mut Intermediate<'_>,
+    rows: &mut [Rgba],
+) -> Result<(), Error> {
+    let view = &frame.view;
+    need(
+        "row buffer",
+        composite::row_buffer_len(view.dims[0]),
+        rows.len(),
+    )?;
+    if img.width() != view.intermediate[0] || img.height() != view.intermediate[1] {
+        return Err(Error::BadParameter {
+            reason: "intermediate image does not match the frame",
+        });
+    }
+    for idx in 0..view.dims[2] {
+        let k = view.slice_at(idx);
+        source.with_slice(view.axis, k, |slice| {
+            composite::composite_slice(img, slice, k, view, tables, rows)
+        })??;
+    }
+    Ok(())
+}
+
+/// Renders one frame of `source` into `sink` on the calling thread.
 pub fn render<S: SliceSource, P: PixelSink>(
     source: &mut S,
     camera: &Camera,
@@ -97,47 +185,13 @@ pub fn render<S: SliceSource, P: PixelSink>(
     sink: &mut P,
 ) -> Result<(), Error> {
     let grid = source.grid();
-    let view = Factorization::new(&grid, camera)?;
-    if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
-        return Err(Error::BadParameter {
-            reason: "early-ray-termination threshold must be in (0, 1]",
-        });
-    }
-    let [iw, ih] = view.intermediate;
+    let frame = Frame::new(&grid, camera, settings, ws.shade)?;
     need("out row", camera.width, ws.out_row.len())?;
-    need(
-        "row buffer",
-        composite::row_buffer_len(view.dims[0]),
-        ws.rows.len(),
-    )?;
-    match settings.lighting {
-        Some(l) => ws.shade.fill(l, &view.rotation)?,
-        None => *ws.shade = ShadeTable::UNSHADED,
-    }
-    let opacity = crate::classify::opacity_correction(view.step_ratio);
-    // ERT at 1.0 can never trigger strictly below ONE; keep it reachable only at ONE+1.
-    let ert = if settings.ert_threshold >= 1.0 {
-        fixed::ONE + 1
-    } else {
-        fixed::from_f64(settings.ert_threshold)
-    };
-    let tables = SliceTables {
-        opacity: &opacity,
-        color: settings.color,
-        shade: ws.shade,
-        mode: settings.mode,
-        ert,
-    };
-    let rows = &mut *ws.rows;
-    rows.fill([0; 4]);
+    let [iw, ih] = frame.view.intermediate;
+    let tables = frame.tables(settings.color, ws.shade);
     let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
-    for idx in 0..view.dims[2] {
-        let k = view.slice_at(idx);
-        source.with_slice(view.axis, k, |slice| {
-            composite::composite_slice(&mut img, slice, k, &view, &tables, rows, (0, ih))
-        })??;
-    }
-    warp::warp(&img, &view, ws.out_row, sink)
+    composite_band(source, &frame, &tables, &mut img, ws.rows)?;
+    warp::warp(img.pixels(), &frame.view, ws.out_row, sink)
 }
 
 /// Bytes of a [`StaticWorkspace`] able to render any view of a `dims` volume at width
@@ -361,7 +415,7 @@ mod tests {
                     width: 48,
                     pixels: &mut frame2,
                 };
-                warp::warp(&img, &view, &mut out_row, &mut sink2).unwrap();
+                warp::warp(img.pixels(), &view, &mut out_row, &mut sink2).unwrap();
                 assert_eq!(frame, frame2, "view {rx} {ry} ert {ert}");
                 assert!(
                     frame.iter().any(|p| p[3] > 100),

@@ -5,7 +5,7 @@
 //! start of each output row is computed from the exact affine map (so error does not
 //! accumulate across rows) and stepped by a constant increment along the row.
 
-use crate::composite::Intermediate;
+use crate::composite::Rgba;
 use crate::error::{need, Error};
 use crate::fixed;
 use crate::view::Factorization;
@@ -49,20 +49,22 @@ fn to_fixed(x: f64) -> i64 {
     libm::round(c * (1u64 << FRAC) as f64) as i64
 }
 
-/// Warps `img` into the final image, one row at a time through `sink`. `row` must hold
-/// at least the image width.
+/// Warps the intermediate image `px` (the full `view.intermediate` size, row-major) into
+/// the final image, one row at a time through `sink`. `row` must hold at least the image
+/// width.
 pub fn warp(
-    img: &Intermediate<'_>,
+    px: &[Rgba],
     view: &Factorization,
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
     let [w, h] = view.image;
     need("warp row", w, row.len())?;
+    let [iwu, ihu] = view.intermediate;
+    need("intermediate pixels", iwu * ihu, px.len())?;
     let row = &mut row[..w];
     let m = view.image_to_intermediate;
-    let (iw, ih) = (img.width() as i64, img.height() as i64);
-    let px = img.pixels();
+    let (iw, ih) = (iwu as i64, ihu as i64);
     let du = to_fixed(m[0][0]);
     let dv = to_fixed(m[1][0]);
     let one = 1i64 << FRAC;

@@ -72,3 +72,18 @@ fn golden_cases_match_reference_and_committed_images() {
         failures.join("\n")
     );
 }
+
+#[test]
+fn threaded_rendering_is_bit_identical_to_single_threaded() {
+    for case in CASES
+        .iter()
+        .filter(|c| c.name.starts_with("head64") || c.name == "spheres_45_45")
+    {
+        let raw = cases::load(case.vol);
+        let one = cases::render_ours_threads(case, &raw, 1);
+        for threads in [2, 3, 5] {
+            let many = cases::render_ours_threads(case, &raw, threads);
+            assert!(one == many, "{}: {threads} threads differ", case.name);
+        }
+    }
+}

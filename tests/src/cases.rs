@@ -283,6 +283,11 @@ pub fn load(vol: Vol) -> RawVolume {
 
 /// Renders a case with the shear-warp renderer (RGB8, row-major).
 pub fn render_ours(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
+    render_ours_threads(case, raw, 1)
+}
+
+/// As [`render_ours`], compositing with `threads` threads.
+pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<[u8; 3]> {
     let class = Classification {
         opacity: case.opacity.to_vec(),
         gradient: None,
@@ -301,7 +306,7 @@ pub fn render_ours(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         width: case.size,
         height: case.size,
     };
-    let mut r = Renderer::new(&enc.grid, case.size);
+    let mut r = Renderer::with_threads(&enc.grid, case.size, threads);
     let mut src = enc.volume().expect("volume");
     let frame = r.render(&mut src, &cam, &look).expect("render");
     frame.iter().map(|p| [p[0], p[1], p[2]]).collect()

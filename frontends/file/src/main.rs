@@ -98,12 +98,16 @@ struct RenderOpts {
     /// Early ray termination opacity (1 disables it).
     #[arg(long, default_value_t = 0.95)]
     ert: f64,
+    /// Compositing threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
     /// Prefer the 16-bit file when the sidecar lists one.
     #[arg(long)]
     u16: bool,
 }
 
 struct Prepared {
+    threads: usize,
     raw: RawVolume,
     encoded: Encoded,
     look: Look,
@@ -208,7 +212,14 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
         width,
         height,
     };
+    let threads = o
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    if threads == 0 || threads > 256 {
+        return Err("--threads must be 1..=256".into());
+    }
     Ok(Prepared {
+        threads,
         raw,
         encoded,
         look,
@@ -225,7 +236,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         } => {
             let p = prepare(&volume, &opts)?;
             let mut src = p.encoded.volume()?;
-            let mut r = Renderer::new(&p.encoded.grid, p.camera.width);
+            let mut r = Renderer::with_threads(&p.encoded.grid, p.camera.width, p.threads);
             let frame = r.render(&mut src, &p.camera, &p.look)?;
             scene::save_png(&output, p.camera.width, p.camera.height, &frame)
                 .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
@@ -252,7 +263,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             let p = prepare(&volume, &opts)?;
             let preprocess = t0.elapsed().as_secs_f64() * 1e3;
             let mut src = p.encoded.volume()?;
-            let mut r = Renderer::new(&p.encoded.grid, p.camera.width);
+            let mut r = Renderer::with_threads(&p.encoded.grid, p.camera.width, p.threads);
             let mut times = Vec::with_capacity(frames);
             for i in 0..frames {
                 let mut cam = p.camera;
@@ -264,13 +275,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             }
             times.sort_by(f64::total_cmp);
             println!(
-                "volume={} dims={}x{}x{} image={}x{} visible_voxels={} rle_bytes={}",
+                "volume={} dims={}x{}x{} image={}x{} threads={} visible_voxels={} rle_bytes={}",
                 p.raw.name,
                 p.raw.dims[0],
                 p.raw.dims[1],
                 p.raw.dims[2],
                 p.camera.width,
                 p.camera.height,
+                p.threads,
                 p.encoded.visible_voxels(),
                 p.encoded.bytes()
             );

@@ -5,14 +5,16 @@ use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{
     self, ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel,
 };
-use shearwarp_core::composite::{self, Mode, Rgba};
-use shearwarp_core::render::{self, Settings, Workspace};
+use shearwarp_core::composite::{self, Intermediate, Mode, Rgba};
+use shearwarp_core::render::{self, Frame, Settings, Workspace};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Lighting, ShadeTable};
 use shearwarp_core::source::{RleVolume, SliceSource};
 use shearwarp_core::view::{self, Camera};
+use shearwarp_core::warp;
 use shearwarp_core::warp::FrameBuffer;
 use shearwarp_core::Error;
+use std::sync::Mutex;
 
 /// Everything about appearance that is decided when the volume is encoded.
 #[derive(Clone, Debug)]
@@ -143,59 +145,142 @@ pub struct Look {
     pub ert_threshold: f64,
 }
 
-/// Heap-allocated workspace sized for one volume, reused across frames.
+/// Heap-allocated workspace sized for one volume, reused across frames, rendering with
+/// a configurable number of threads.
+///
+/// With more than one thread the intermediate image is cut into bands of
+/// [`Renderer::BAND_ROWS`] scanlines that threads take from a shared queue as they finish
+/// (dynamic assignment keeps the load balanced when the object fills only part of the
+/// image); each thread composites every slice into its band. The output is bit-identical
+/// to the single-threaded path because every intermediate pixel is computed by the same
+/// code from the same inputs.
 pub struct Renderer {
     pixels: Vec<Rgba>,
     links: Vec<u16>,
-    rows: Vec<Rgba>,
+    rows: Vec<Vec<Rgba>>,
     out_row: Vec<[u8; 4]>,
     shade: Box<ShadeTable>,
+    threads: usize,
 }
 
 impl Renderer {
-    /// Allocates for any view of `grid` at images up to `max_width` wide.
+    /// Scanlines per work unit in threaded rendering.
+    pub const BAND_ROWS: usize = 8;
+
+    /// Allocates for any view of `grid` at images up to `max_width` wide, one thread.
     pub fn new(grid: &Grid, max_width: usize) -> Self {
+        Self::with_threads(grid, max_width, 1)
+    }
+
+    /// As [`Renderer::new`], compositing with `threads` threads (at least 1).
+    pub fn with_threads(grid: &Grid, max_width: usize, threads: usize) -> Self {
+        let threads = threads.max(1);
         let pix = view::max_intermediate_pixels(grid.dims);
         let m = grid.dims.iter().copied().max().unwrap_or(1);
         Renderer {
             pixels: vec![[0; 4]; pix],
             links: vec![0; pix],
-            rows: vec![[0; 4]; composite::row_buffer_len(m)],
+            rows: (0..threads)
+                .map(|_| vec![[0; 4]; composite::row_buffer_len(m)])
+                .collect(),
             out_row: vec![[0; 4]; max_width],
             shade: Box::new(ShadeTable::UNSHADED),
+            threads,
         }
     }
 
+    /// Number of compositing threads.
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+
     /// Renders one frame of `source`; returns RGBA8 pixels, row-major.
-    pub fn render(
+    pub fn render<S: SliceSource + Clone + Send>(
         &mut self,
-        source: &mut impl SliceSource,
+        source: &mut S,
         camera: &Camera,
         look: &Look,
     ) -> Result<Vec<[u8; 4]>, Error> {
         if self.out_row.len() < camera.width {
             self.out_row.resize(camera.width, [0; 4]);
         }
-        let mut frame = vec![[0u8; 4]; camera.width * camera.height];
+        let mut frame_px = vec![[0u8; 4]; camera.width * camera.height];
         let settings = Settings {
             mode: look.mode,
             color: &look.color,
             lighting: look.lighting.as_ref(),
             ert_threshold: look.ert_threshold,
         };
-        let mut ws = Workspace {
-            pixels: &mut self.pixels,
-            links: &mut self.links,
-            rows: &mut self.rows,
-            out_row: &mut self.out_row,
-            shade: &mut self.shade,
-        };
         let mut sink = FrameBuffer {
             width: camera.width,
-            pixels: &mut frame,
+            pixels: &mut frame_px,
         };
-        render::render(source, camera, &settings, &mut ws, &mut sink)?;
-        Ok(frame)
+        if self.threads == 1 {
+            let mut ws = Workspace {
+                pixels: &mut self.pixels,
+                links: &mut self.links,
+                rows: &mut self.rows[0],
+                out_row: &mut self.out_row,
+                shade: &mut self.shade,
+            };
+            render::render(source, camera, &settings, &mut ws, &mut sink)?;
+            return Ok(frame_px);
+        }
+        let grid = source.grid();
+        let frame = Frame::new(&grid, camera, &settings, &mut self.shade)?;
+        let tables = frame.tables(&look.color, &self.shade);
+        let [iw, ih] = frame.view.intermediate;
+        let n = iw * ih;
+        if self.pixels.len() < n {
+            self.pixels.resize(n, [0; 4]);
+            self.links.resize(n, 0);
+        }
+        let band = Self::BAND_ROWS * iw;
+        let queue: Mutex<Vec<(usize, &mut [Rgba], &mut [u16])>> = Mutex::new(
+            self.pixels[..n]
+                .chunks_mut(band)
+                .zip(self.links[..n].chunks_mut(band))
+                .enumerate()
+                .map(|(i, (p, l))| (i, p, l))
+                .rev()
+                .collect(),
+        );
+        let result: Result<(), Error> = std::thread::scope(|scope| {
+            let handles: Vec<_> = self
+                .rows
+                .iter_mut()
+                .map(|rows| {
+                    let queue = &queue;
+                    let frame = &frame;
+                    let tables = &tables;
+                    let mut src = source.clone();
+                    scope.spawn(move || -> Result<(), Error> {
+                        loop {
+                            let job = queue
+                                .lock()
+                                .map_err(|_| Error::Source {
+                                    reason: "a compositing thread panicked",
+                                })?
+                                .pop();
+                            let Some((i, p, l)) = job else { return Ok(()) };
+                            let row0 = i * Self::BAND_ROWS;
+                            let rows_here = Self::BAND_ROWS.min(ih - row0);
+                            let mut img = Intermediate::band(iw, ih, row0, rows_here, p, l)?;
+                            render::composite_band(&mut src, frame, tables, &mut img, rows)?;
+                        }
+                    })
+                })
+                .collect();
+            for h in handles {
+                h.join().map_err(|_| Error::Source {
+                    reason: "a compositing thread panicked",
+                })??;
+            }
+            Ok(())
+        });
+        result?;
+        warp::warp(&self.pixels[..n], &frame.view, &mut self.out_row, &mut sink)?;
+        Ok(frame_px)
     }
 }
 
