@@ -145,6 +145,9 @@ pub struct Look {
     pub ert_threshold: f64,
 }
 
+/// One unit of threaded work: band index, its pixels and its links.
+type BandJob<'a> = (usize, &'a mut [Rgba], &'a mut [u16]);
+
 /// Heap-allocated workspace sized for one volume, reused across frames, rendering with
 /// a configurable number of threads.
 ///
@@ -236,7 +239,7 @@ impl Renderer {
             self.links.resize(n, 0);
         }
         let band = Self::BAND_ROWS * iw;
-        let queue: Mutex<Vec<(usize, &mut [Rgba], &mut [u16])>> = Mutex::new(
+        let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(
             self.pixels[..n]
                 .chunks_mut(band)
                 .zip(self.links[..n].chunks_mut(band))
