@@ -37,6 +37,13 @@ pub enum Error {
         /// Which parameter and why.
         reason: &'static str,
     },
+    /// A `.swv` stream is not a valid volume file (see [`crate::swv`]).
+    Format {
+        /// What is wrong.
+        reason: &'static str,
+    },
+    /// Reading the underlying byte source failed.
+    Io(crate::io::IoError),
     /// A volume source failed to deliver a slice (I/O error or corrupt data).
     Source {
         /// What failed.
@@ -58,12 +65,24 @@ impl fmt::Display for Error {
             Error::BadTransferFunction { reason } => write!(f, "bad transfer function: {reason}"),
             Error::MalformedRle { reason } => write!(f, "malformed run-length data: {reason}"),
             Error::BadParameter { reason } => write!(f, "bad parameter: {reason}"),
+            Error::Format { reason } => write!(f, "invalid .swv volume: {reason}"),
+            Error::Io(e) => match e {
+                crate::io::IoError::UnexpectedEof => write!(f, "input ends early (truncated)"),
+                crate::io::IoError::BadSeek => write!(f, "offset points past the end of the input"),
+                crate::io::IoError::Device => write!(f, "read error"),
+            },
             Error::Source { reason } => write!(f, "volume source failed: {reason}"),
         }
     }
 }
 
 impl core::error::Error for Error {}
+
+impl From<crate::io::IoError> for Error {
+    fn from(e: crate::io::IoError) -> Self {
+        Error::Io(e)
+    }
+}
 
 /// Returns `BufferTooSmall` unless `got >= needed`.
 pub(crate) fn need(what: &'static str, needed: usize, got: usize) -> Result<(), Error> {

@@ -25,11 +25,13 @@ pub mod classify;
 pub mod composite;
 pub mod error;
 pub mod fixed;
+pub mod io;
 pub mod normal;
 pub mod render;
 pub mod rle;
 pub mod shade;
 pub mod source;
+pub mod swv;
 pub mod view;
 pub mod warp;
 
