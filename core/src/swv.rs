@@ -793,7 +793,9 @@ mod tests {
 
     const DIMS: [usize; 3] = [20, 14, 17];
 
-    fn encoded() -> (Grid, Vec<(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)>) {
+    type AxisArrays = (Vec<u8>, Vec<Voxel>, Vec<ScanIndex>);
+
+    fn encoded() -> (Grid, Vec<AxisArrays>) {
         let grid = Grid::new(DIMS, [1.0, 1.2, 0.9]).unwrap();
         let mut data = Vec::new();
         for z in 0..DIMS[2] {
