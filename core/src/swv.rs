@@ -488,40 +488,11 @@ impl<R: Read + Seek, const SCANS: usize, const RUNS: usize, const VOXELS: usize>
     /// Reads and checks the header, look block and slice tables (their checksum), and
     /// checks that every scanline count fits `SCANS`.
     pub fn open(mut reader: R) -> Result<Self, Error> {
-        reader.seek(0)?;
-        let mut hp = HeaderParser::new();
-        let mut buf = [0u8; CHUNK];
-        while hp.needed() > 0 {
-            let want = hp.needed().min(CHUNK);
-            let n = reader.read(&mut buf[..want])?;
-            if n == 0 || n > want {
-                return Err(Error::Io(IoError::UnexpectedEof));
-            }
-            hp.feed(&buf[..n])?;
-        }
-        let header = hp.finish()?;
+        let header = read_header(&mut reader)?;
         let d = header.grid.dims;
         for axis in Axis::ALL {
             let [_, nj, _] = axis.permuted_dims(d);
             crate::error::need("slice scanline capacity", nj + 1, SCANS)?;
-        }
-        // Check the look block and tables against the header's checksum.
-        let mut crc = Crc32::new();
-        crc.update(&hp.buf[HEADER_LEN..]);
-        let mut left = header.tables_end() - TABLES_START as u64;
-        while left > 0 {
-            let want = (left as usize).min(CHUNK);
-            let n = reader.read(&mut buf[..want])?;
-            if n == 0 || n > want {
-                return Err(Error::Io(IoError::UnexpectedEof));
-            }
-            crc.update(&buf[..n]);
-            left -= n as u64;
-        }
-        if crc.finish() != header.tables_crc {
-            return Err(Error::Format {
-                reason: "slice table checksum mismatch",
-            });
         }
         Ok(StreamSource {
             reader,
@@ -554,17 +525,96 @@ impl<R: Read + Seek, const SCANS: usize, const RUNS: usize, const VOXELS: usize>
 
     /// Reads the table entry of slice `k` along `axis`.
     pub fn entry(&mut self, axis: Axis, k: usize) -> Result<SliceEntry, Error> {
-        let [_, _, nk] = axis.permuted_dims(self.header.grid.dims);
-        if k >= nk {
-            return Err(Error::Source {
-                reason: "slice index past the end of the volume",
-            });
-        }
-        self.reader.seek(self.header.table_entry_offset(axis, k))?;
-        let mut b = [0u8; ENTRY_LEN];
-        self.reader.read_exact(&mut b)?;
-        Ok(SliceEntry::parse(&b))
+        read_entry(&mut self.reader, &self.header, axis, k)
     }
+}
+
+/// Reads and checks the header, look block and slice tables of a `.swv` from offset 0.
+pub fn read_header<R: Read + Seek>(reader: &mut R) -> Result<Header, Error> {
+    reader.seek(0)?;
+    let mut hp = HeaderParser::new();
+    let mut buf = [0u8; CHUNK];
+    while hp.needed() > 0 {
+        let want = hp.needed().min(CHUNK);
+        let n = reader.read(&mut buf[..want])?;
+        if n == 0 || n > want {
+            return Err(Error::Io(IoError::UnexpectedEof));
+        }
+        hp.feed(&buf[..n])?;
+    }
+    let header = hp.finish()?;
+    let mut crc = Crc32::new();
+    crc.update(&hp.buf[HEADER_LEN..]);
+    let mut left = header.tables_end() - TABLES_START as u64;
+    while left > 0 {
+        let want = (left as usize).min(CHUNK);
+        let n = reader.read(&mut buf[..want])?;
+        if n == 0 || n > want {
+            return Err(Error::Io(IoError::UnexpectedEof));
+        }
+        crc.update(&buf[..n]);
+        left -= n as u64;
+    }
+    if crc.finish() != header.tables_crc {
+        return Err(Error::Format {
+            reason: "slice table checksum mismatch",
+        });
+    }
+    Ok(header)
+}
+
+/// Reads the table entry of slice `k` along `axis`.
+pub fn read_entry<R: Read + Seek>(
+    reader: &mut R,
+    header: &Header,
+    axis: Axis,
+    k: usize,
+) -> Result<SliceEntry, Error> {
+    let [_, _, nk] = axis.permuted_dims(header.grid.dims);
+    if k >= nk {
+        return Err(Error::Source {
+            reason: "slice index past the end of the volume",
+        });
+    }
+    reader.seek(header.table_entry_offset(axis, k))?;
+    let mut b = [0u8; ENTRY_LEN];
+    reader.read_exact(&mut b)?;
+    let e = SliceEntry::parse(&b);
+    if e.offset < header.tables_end() {
+        return Err(Error::Format {
+            reason: "slice offset points into the header or tables",
+        });
+    }
+    Ok(e)
+}
+
+/// Reads and validates the record of `entry` (slice `k` along `axis`) into caller
+/// buffers, `chunk` bytes per read.
+#[allow(clippy::too_many_arguments)]
+pub fn read_slice<'b, R: Read + Seek>(
+    reader: &mut R,
+    header: &Header,
+    axis: Axis,
+    entry: &SliceEntry,
+    chunk: usize,
+    scans: &'b mut [ScanIndex],
+    runs: &'b mut [u8],
+    voxels: &'b mut [Voxel],
+) -> Result<RleSlice<'b>, Error> {
+    let [ni, nj, _] = axis.permuted_dims(header.grid.dims);
+    reader.seek(entry.offset)?;
+    let mut parser = RecordParser::new(nj, entry, scans, runs, voxels)?;
+    let mut buf = [0u8; CHUNK];
+    let chunk = chunk.clamp(1, CHUNK);
+    while parser.remaining() > 0 {
+        let want = parser.remaining().min(chunk);
+        let n = reader.read(&mut buf[..want])?;
+        if n == 0 || n > want {
+            return Err(Error::Io(IoError::UnexpectedEof));
+        }
+        parser.feed(&buf[..n]);
+    }
+    parser.finish(ni, nj, entry.crc)
 }
 
 impl<R: Read + Seek, const SCANS: usize, const RUNS: usize, const VOXELS: usize> SliceSource
@@ -581,30 +631,16 @@ impl<R: Read + Seek, const SCANS: usize, const RUNS: usize, const VOXELS: usize>
         f: impl FnOnce(&RleSlice<'_>) -> T,
     ) -> Result<T, Error> {
         let entry = self.entry(axis, k)?;
-        if entry.offset < self.header.tables_end() {
-            return Err(Error::Format {
-                reason: "slice offset points into the header or tables",
-            });
-        }
-        let [ni, nj, _] = axis.permuted_dims(self.header.grid.dims);
-        self.reader.seek(entry.offset)?;
-        let mut parser = RecordParser::new(
-            nj,
+        let slice = read_slice(
+            &mut self.reader,
+            &self.header,
+            axis,
             &entry,
+            self.chunk,
             &mut self.scans,
             &mut self.runs,
             &mut self.voxels,
         )?;
-        let mut buf = [0u8; CHUNK];
-        while parser.remaining() > 0 {
-            let want = parser.remaining().min(self.chunk);
-            let n = self.reader.read(&mut buf[..want])?;
-            if n == 0 || n > want {
-                return Err(Error::Io(IoError::UnexpectedEof));
-            }
-            parser.feed(&buf[..n]);
-        }
-        let slice = parser.finish(ni, nj, entry.crc)?;
         Ok(f(&slice))
     }
 }

@@ -3,6 +3,7 @@
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use shearwarp_core::composite::Mode;
 use shearwarp_core::shade::{Light, Lighting};
+use shearwarp_core::swv;
 use shearwarp_core::view::Camera;
 use shearwarp_file::scene::{self, Classification, Encoded, Look, Renderer};
 use shearwarp_file::tfspec;
@@ -23,9 +24,19 @@ struct Cli {
 enum Command {
     /// Render one view of a volume to a PNG.
     Render {
-        /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
+        /// Volume: a raw file (`.raw` or `.raw.gz`), its JSON sidecar, or a `.swv`.
         volume: PathBuf,
         /// Output PNG.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        opts: RenderOpts,
+    },
+    /// Classify and run-length encode a volume into a streamable `.swv` file.
+    Encode {
+        /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
+        volume: PathBuf,
+        /// Output `.swv` file.
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -108,7 +119,8 @@ struct RenderOpts {
 
 struct Prepared {
     threads: usize,
-    raw: RawVolume,
+    name: String,
+    dims: [usize; 3],
     encoded: Encoded,
     look: Look,
     camera: Camera,
@@ -140,62 +152,34 @@ fn default_color(range: (u16, u16)) -> Vec<(f64, [u8; 3])> {
 
 fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn Error>> {
     let (width, height) = tfspec::parse_size(&o.size)?;
-    let prefer = if o.u16 {
-        volume::Prefer::U16
-    } else {
-        volume::Prefer::U8
-    };
-    let raw = volume::load_volume_with(path, prefer)?;
-    let range = match &raw.voxels {
-        volume::Voxels::U8(_) => (0, 255),
-        volume::Voxels::U16(d) => (
-            d.iter().copied().min().unwrap_or(0),
-            d.iter().copied().max().unwrap_or(0),
-        ),
-    };
-    let opacity = match &o.opacity {
-        Some(s) => tfspec::parse_opacity(s)?,
-        None => default_opacity(range, o.mode),
-    };
-    let gradient = o
-        .gradient_opacity
-        .as_deref()
-        .map(tfspec::parse_opacity)
-        .transpose()?;
-    let color_pts = match &o.color {
-        Some(s) => tfspec::parse_color(s)?,
-        None => default_color(range),
-    };
-    let class = Classification {
-        opacity,
-        gradient,
-        min_opacity: o.min_opacity,
-    };
-    let encoded = scene::encode(&raw, &class)?;
-    let color = scene::color_table(&color_pts, encoded.range)?;
-    let lighting = if o.shading {
-        let mut l = Lighting {
-            ka: o.ka,
-            kd: o.kd,
-            ks: o.ks,
-            shininess: o.shininess,
-            ..Lighting::default()
-        };
-        if !o.light.is_empty() {
-            l.lights.clear();
-            for s in &o.light {
-                let d = tfspec::parse_vec3(s)?;
-                l.lights
-                    .push(Light {
-                        direction: d,
-                        color: [1.0; 3],
-                    })
-                    .map_err(|_| "at most 4 lights (--light) are supported")?;
-            }
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let (encoded, file_look) = if scene::is_swv(path) {
+        if o.opacity.is_some() || o.gradient_opacity.is_some() || o.u16 {
+            return Err(format!(
+                "{}: opacity is baked into a .swv file; re-encode it with `shearwarp encode` \
+                 to change --opacity/--gradient-opacity/--u16",
+                path.display()
+            )
+            .into());
         }
-        Some(l)
+        let (enc, look) = scene::read_swv(path)?;
+        (enc, Some(look))
     } else {
-        None
+        let raw = load_raw(path, o)?;
+        (encode_raw(&raw, o)?, None)
+    };
+    let color = match (&o.color, &file_look) {
+        (Some(s), _) => scene::color_table(&tfspec::parse_color(s)?, encoded.range)?,
+        (None, Some(l)) => l.color,
+        (None, None) => scene::color_table(&default_color(encoded.range), encoded.range)?,
+    };
+    let lighting = if o.shading || file_look.is_none() {
+        o.shading.then(|| cli_lighting(o)).transpose()?
+    } else {
+        file_look.and_then(|l| l.lighting)
     };
     let look = Look {
         mode: match o.mode {
@@ -220,11 +204,69 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
     }
     Ok(Prepared {
         threads,
-        raw,
+        name,
+        dims: encoded.grid.dims,
         encoded,
         look,
         camera,
     })
+}
+
+fn load_raw(path: &std::path::Path, o: &RenderOpts) -> Result<RawVolume, Box<dyn Error>> {
+    let prefer = if o.u16 {
+        volume::Prefer::U16
+    } else {
+        volume::Prefer::U8
+    };
+    Ok(volume::load_volume_with(path, prefer)?)
+}
+
+fn encode_raw(raw: &RawVolume, o: &RenderOpts) -> Result<Encoded, Box<dyn Error>> {
+    let range = match &raw.voxels {
+        volume::Voxels::U8(_) => (0, 255),
+        volume::Voxels::U16(d) => (
+            d.iter().copied().min().unwrap_or(0),
+            d.iter().copied().max().unwrap_or(0),
+        ),
+    };
+    let opacity = match &o.opacity {
+        Some(s) => tfspec::parse_opacity(s)?,
+        None => default_opacity(range, o.mode),
+    };
+    let gradient = o
+        .gradient_opacity
+        .as_deref()
+        .map(tfspec::parse_opacity)
+        .transpose()?;
+    let class = Classification {
+        opacity,
+        gradient,
+        min_opacity: o.min_opacity,
+    };
+    Ok(scene::encode(raw, &class)?)
+}
+
+fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {
+    let mut l = Lighting {
+        ka: o.ka,
+        kd: o.kd,
+        ks: o.ks,
+        shininess: o.shininess,
+        ..Lighting::default()
+    };
+    if !o.light.is_empty() {
+        l.lights.clear();
+        for s in &o.light {
+            let d = tfspec::parse_vec3(s)?;
+            l.lights
+                .push(Light {
+                    direction: d,
+                    color: [1.0; 3],
+                })
+                .map_err(|_| "at most 4 lights (--light) are supported")?;
+        }
+    }
+    Ok(l)
 }
 
 fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
@@ -242,13 +284,36 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                 .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
             eprintln!(
                 "{}: {}x{}x{} -> {} ({}x{})",
-                p.raw.name,
-                p.raw.dims[0],
-                p.raw.dims[1],
-                p.raw.dims[2],
+                p.name,
+                p.dims[0],
+                p.dims[1],
+                p.dims[2],
                 output.display(),
                 p.camera.width,
                 p.camera.height
+            );
+        }
+        Command::Encode {
+            volume,
+            output,
+            opts,
+        } => {
+            let p = prepare(&volume, &opts)?;
+            let look = swv::Look {
+                color: p.look.color,
+                lighting: p.look.lighting.clone(),
+            };
+            scene::write_swv(&p.encoded, &look, &output)?;
+            let bytes = std::fs::metadata(&output).map(|m| m.len()).unwrap_or(0);
+            eprintln!(
+                "{}: {}x{}x{} -> {} ({} bytes, {} stored voxels per axis copy)",
+                p.name,
+                p.dims[0],
+                p.dims[1],
+                p.dims[2],
+                output.display(),
+                bytes,
+                p.encoded.visible_voxels()
             );
         }
         Command::Bench {
@@ -276,10 +341,10 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             times.sort_by(f64::total_cmp);
             println!(
                 "volume={} dims={}x{}x{} image={}x{} threads={} visible_voxels={} rle_bytes={}",
-                p.raw.name,
-                p.raw.dims[0],
-                p.raw.dims[1],
-                p.raw.dims[2],
+                p.name,
+                p.dims[0],
+                p.dims[1],
+                p.dims[2],
                 p.camera.width,
                 p.camera.height,
                 p.threads,
