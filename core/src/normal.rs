@@ -55,6 +55,51 @@ pub fn decode(code: u16) -> Option<[f64; 3]> {
     Some([px / len, py / len, pz / len])
 }
 
+/// Unit vector of every direction code in Q14 (`i16`, 16384 = 1.0), computed at compile
+/// time with integer arithmetic so that shading tables need no floating point per code.
+pub static UNIT: [[i16; 3]; DIRECTIONS] = unit_table();
+
+/// `v·2^28 / len`, rounded half away from zero.
+const fn div_round(v: i64, len: i64) -> i16 {
+    let num = v << 28;
+    let r = if num >= 0 {
+        (num + len / 2) / len
+    } else {
+        (num - len / 2) / len
+    };
+    r as i16
+}
+
+const fn unit_table() -> [[i16; 3]; DIRECTIONS] {
+    let mut t = [[0i16; 3]; DIRECTIONS];
+    let mut code = 0;
+    while code < DIRECTIONS {
+        let c = code as i64;
+        let a_i = c % GRID;
+        let b_i = (c / GRID) % GRID;
+        let neg = c / (GRID * GRID) == 1;
+        // Cell centre in units of 1/(2·GRID): a = (2·a_i + 1 − GRID)/GRID.
+        let a2 = 2 * a_i + 1 - GRID;
+        let b2 = 2 * b_i + 1 - GRID;
+        // p = ((a + b)/2, (b − a)/2, ±(1 − |px| − |py|)), scaled by 2·GRID.
+        let px = a2 + b2;
+        let py = b2 - a2;
+        let mut pz = 2 * GRID - px.abs() - py.abs();
+        if pz < 0 {
+            pz = 0;
+        }
+        if neg {
+            pz = -pz;
+        }
+        let len2 = (px * px + py * py + pz * pz) as u64;
+        // |p|·2^14, so n = p·2^28 / (|p|·2^14) = p/|p| in Q14.
+        let len = crate::fixed::isqrt(len2 << 28) as i64;
+        t[code] = [div_round(px, len), div_round(py, len), div_round(pz, len)];
+        code += 1;
+    }
+    t
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -95,6 +140,20 @@ mod tests {
         }
         assert_eq!(decode(ZERO_GRADIENT), None);
         assert_eq!(encode(0, 0, 0), ZERO_GRADIENT);
+    }
+
+    #[test]
+    fn integer_unit_table_matches_float_decode() {
+        for code in 0..DIRECTIONS as u16 {
+            let f = decode(code).unwrap();
+            let q = UNIT[code as usize];
+            for c in 0..3 {
+                assert!(
+                    (q[c] as f64 / 16384.0 - f[c]).abs() < 1.0 / 16384.0,
+                    "{code}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -12,6 +12,9 @@ use crate::fixed::{self, ONE};
 use crate::normal;
 use heapless::Vec;
 
+/// Entries of the specular power table (plus one).
+const SPEC_STEPS: usize = 1024;
+
 /// Most directional lights a frame may use.
 pub const MAX_LIGHTS: usize = 4;
 
@@ -95,10 +98,6 @@ fn norm(v: [f64; 3]) -> f64 {
     libm::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 /// Diffuse and specular factors per normal code, Q15 RGB. The diffuse factor can exceed
 /// one (bright lights), so it is stored as `u32`-ranged `u16` with a cap of 2.0 (Q15
 /// 65535); the product with a colour is clamped at composite time.
@@ -119,54 +118,94 @@ impl ShadeTable {
 
     /// Fills the table for `lighting` with object-to-camera rotation `rot` (row-major,
     /// applied to object-space normals measured in physical units).
+    ///
+    /// Floats are used once per light (to move it into object space) and to tabulate the
+    /// specular power; the 8193 entries are then integer arithmetic on the compile-time
+    /// normal table [`normal::UNIT`]. On a Cortex-M3 without FPU this keeps the per-frame
+    /// setup to a few million instructions instead of a soft-float `pow` per code.
     pub fn fill(&mut self, lighting: &Lighting, rot: &[[f64; 3]; 3]) -> Result<(), Error> {
         lighting.validate()?;
-        let q = |x: f64| -> u16 { (x.clamp(0.0, 65535.0 / ONE as f64) * ONE as f64 + 0.5) as u16 };
-        let mut lights: Vec<([f64; 3], [f64; 3], [f64; 3]), MAX_LIGHTS> = Vec::new();
+        const Q14: f64 = (1 << 14) as f64;
+        let q15 = |x: f64| -> u32 { (x.max(0.0) * ONE as f64 + 0.5) as u32 };
+        // Light and half vectors in object space, Q14; light colour times kd / ks, Q15.
+        struct L {
+            d: [i32; 3],
+            h: [i32; 3],
+            kd: [u32; 3],
+            ks: [u32; 3],
+        }
+        let mut lights: Vec<L, MAX_LIGHTS> = Vec::new();
         for l in &lighting.lights {
             let n = norm(l.direction);
             let d = l.direction.map(|c| c / n);
             let h = [d[0], d[1], d[2] + 1.0];
             let hn = norm(h);
             // Light exactly behind the object: the half vector is undefined; any
-            // perpendicular direction gives |n·h| symmetric results, so use +x.
+            // perpendicular direction gives symmetric results, so use +x.
             let h = if hn < 1e-12 {
                 [1.0, 0.0, 0.0]
             } else {
                 h.map(|c| c / hn)
             };
-            let _ = lights.push((d, h, l.color));
+            // n_cam · v = n_obj · (Rᵀ v).
+            let to_obj = |v: [f64; 3]| -> [i32; 3] {
+                core::array::from_fn(|a| {
+                    let c = rot[0][a] * v[0] + rot[1][a] * v[1] + rot[2][a] * v[2];
+                    libm::round(c * Q14) as i32
+                })
+            };
+            let _ = lights.push(L {
+                d: to_obj(d),
+                h: to_obj(h),
+                kd: l.color.map(|c| q15(lighting.kd * c)),
+                ks: l.color.map(|c| q15(c)),
+            });
         }
+        // ks·x^shininess for x = i/1024, Q15, interpolated linearly between entries.
+        let mut spec = [0u32; SPEC_STEPS + 1];
+        if lighting.ks > 0.0 {
+            for (i, out) in spec.iter_mut().enumerate() {
+                let x = i as f64 / SPEC_STEPS as f64;
+                *out = q15(lighting.ks * libm::pow(x, lighting.shininess)).min(1 << 20);
+            }
+        }
+        let ka = q15(lighting.ka);
+        let cap = |x: u32| x.min(u16::MAX as u32) as u16;
         for code in 0..normal::CODES {
-            let mut dsum = [lighting.ka; 3];
-            let mut ssum = [0.0; 3];
-            match normal::decode(code as u16) {
-                Some(g) => {
-                    // Normal = −gradient, rotated into camera space.
-                    let n = [-dot(rot[0], g), -dot(rot[1], g), -dot(rot[2], g)];
-                    for (d, h, c) in &lights {
-                        let diff = lighting.kd * libm::fabs(dot(n, *d));
-                        let spec = if lighting.ks > 0.0 {
-                            lighting.ks * libm::pow(libm::fabs(dot(n, *h)), lighting.shininess)
-                        } else {
-                            0.0
-                        };
-                        for ch in 0..3 {
-                            dsum[ch] += diff * c[ch];
-                            ssum[ch] += spec * c[ch];
+            let mut d = [ka; 3];
+            let mut sp = [0u32; 3];
+            match normal::UNIT.get(code) {
+                Some(n) => {
+                    let n = [n[0] as i32, n[1] as i32, n[2] as i32];
+                    let dot = |v: &[i32; 3]| -> u32 {
+                        let s = n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+                        // |n·v| in Q14, clamped against rounding past 1.
+                        ((s.unsigned_abs() + (1 << 13)) >> 14).min(1 << 14)
+                    };
+                    for l in &lights {
+                        let nd = dot(&l.d) << 1; // Q15
+                        let nh = dot(&l.h);
+                        let i = (nh >> 4) as usize;
+                        let f = nh & 15;
+                        let lo = spec[i];
+                        let hi = spec[(i + 1).min(SPEC_STEPS)];
+                        let s = (lo * (16 - f) + hi * f + 8) >> 4;
+                        for c in 0..3 {
+                            d[c] += fixed::mul(l.kd[c], nd);
+                            sp[c] += (s * l.ks[c] + (1 << 14)) >> 15;
                         }
                     }
                 }
                 None => {
-                    for (_, _, c) in &lights {
-                        for ch in 0..3 {
-                            dsum[ch] += lighting.kd * c[ch];
+                    for l in &lights {
+                        for c in 0..3 {
+                            d[c] += l.kd[c];
                         }
                     }
                 }
             }
-            self.diffuse[code] = dsum.map(q);
-            self.specular[code] = ssum.map(|s| fixed::from_f64(s) as u16);
+            self.diffuse[code] = d.map(cap);
+            self.specular[code] = sp.map(|x| x.min(ONE) as u16);
         }
         Ok(())
     }

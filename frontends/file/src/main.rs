@@ -42,6 +42,17 @@ enum Command {
         #[command(flatten)]
         opts: RenderOpts,
     },
+    /// Compare two images (PNG or PPM): prints max channel error and PSNR; fails if the
+    /// max channel error exceeds the tolerance.
+    Compare {
+        /// First image.
+        a: PathBuf,
+        /// Second image.
+        b: PathBuf,
+        /// Largest accepted per-channel difference (0 = bit-identical RGB).
+        #[arg(long, default_value_t = 0)]
+        tolerance: u8,
+    },
     /// Render N frames turning 360/N degrees about Y and report timings.
     Bench {
         /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
@@ -292,6 +303,39 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                 p.camera.width,
                 p.camera.height
             );
+        }
+        Command::Compare { a, b, tolerance } => {
+            let load = |p: &PathBuf| -> Result<image::RgbImage, Box<dyn Error>> {
+                Ok(image::open(p)
+                    .map_err(|e| format!("{}: {e}", p.display()))?
+                    .to_rgb8())
+            };
+            let (ia, ib) = (load(&a)?, load(&b)?);
+            if ia.dimensions() != ib.dimensions() {
+                return Err(format!(
+                    "sizes differ: {:?} vs {:?}",
+                    ia.dimensions(),
+                    ib.dimensions()
+                )
+                .into());
+            }
+            let mut max = 0u8;
+            let mut se = 0f64;
+            for (x, y) in ia.as_raw().iter().zip(ib.as_raw()) {
+                let d = x.abs_diff(*y);
+                max = max.max(d);
+                se += (d as f64).powi(2);
+            }
+            let mse = se / ia.as_raw().len() as f64;
+            let psnr = if mse == 0.0 {
+                f64::INFINITY
+            } else {
+                10.0 * (255.0f64 * 255.0 / mse).log10()
+            };
+            println!("max_channel_error={max} psnr_db={psnr:.2}");
+            if max > tolerance {
+                return Err(format!("images differ: max channel error {max} > {tolerance}").into());
+            }
         }
         Command::Encode {
             volume,
