@@ -1078,3 +1078,9 @@ mod tests {
         render(&mut s, &cam, &settings, &mut ws.workspace(), &mut sink)
     }
 }
+
+/// Bytes of the slice buffers of a [`StreamSource`] sized by [`worst_case_capacity`].
+pub const fn stream_buffer_bytes(dims: [usize; 3]) -> usize {
+    let (scans, runs, voxels) = worst_case_capacity(dims);
+    8 * scans + runs + 4 * voxels
+}

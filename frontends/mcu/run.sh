@@ -13,7 +13,8 @@ cargo build --release -q -p shearwarp-file --manifest-path "$root/Cargo.toml"
 sw="$root/target/release/shearwarp"
 "$sw" encode "$root/fixtures/mr_head_colin27_64.json" -o "$out/head64.swv" --shading
 
-(cd "$root/frontends/mcu" && SHEARWARP_SWV="$out/head64.swv" cargo build --release -q)
+(cd "$root/frontends/mcu" && SHEARWARP_SWV="$out/head64.swv" cargo build --release -q \
+    && SHEARWARP_SWV="$out/head64.swv" cargo clippy --release -q -- -D warnings)
 elf="$root/frontends/mcu/target/thumbv7m-none-eabi/release/shearwarp-mcu"
 
 rm -f "$out/mcu_frame.ppm"

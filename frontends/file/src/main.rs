@@ -53,6 +53,13 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         tolerance: u8,
     },
+    /// Print the fixed memory the core needs for a maximum volume and image width.
+    Memory {
+        /// Volume dimensions NXxNYxNZ.
+        dims: String,
+        /// Image width in pixels.
+        width: usize,
+    },
     /// Render N frames turning 360/N degrees about Y and report timings.
     Bench {
         /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
@@ -302,6 +309,23 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                 output.display(),
                 p.camera.width,
                 p.camera.height
+            );
+        }
+        Command::Memory { dims, width } => {
+            let d: Vec<usize> = dims
+                .split(['x', 'X'])
+                .map(|t| t.trim().parse::<usize>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| format!("dims '{dims}': expected NXxNYxNZ"))?;
+            let [nx, ny, nz] = d[..] else {
+                return Err(format!("dims '{dims}': expected three numbers").into());
+            };
+            shearwarp_core::classify::Grid::new([nx, ny, nz], [1.0; 3])?;
+            let ws = shearwarp_core::render::workspace_bytes([nx, ny, nz], width);
+            let st = swv::stream_buffer_bytes([nx, ny, nz]);
+            println!(
+                "dims={nx}x{ny}x{nz} width={width} workspace_bytes={ws} stream_bytes={st} total_bytes={}",
+                ws + st
             );
         }
         Command::Compare { a, b, tolerance } => {
