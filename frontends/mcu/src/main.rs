@@ -88,7 +88,7 @@ fn run() -> Result<(), &'static str> {
     // Per-frame setup alone (factorization, shading and opacity tables), for the report.
     let s0 = ticks(&cp.SYST);
     {
-        let mut ws = work.workspace();
+        let ws = work.workspace();
         let grid = shearwarp_core::source::SliceSource::grid(source);
         shearwarp_core::render::Frame::new(&grid, &CAMERA, &settings, ws.shade)
             .map_err(|_| "frame setup failed")?;
