@@ -49,6 +49,8 @@ pub struct SliceTables<'a> {
     pub mode: Mode,
     /// Early-ray-termination opacity, Q15; pixels at or above it are never touched again.
     pub ert: u32,
+    /// Depth cueing, if on.
+    pub depth: Option<&'a crate::depth::DepthFrame>,
 }
 
 /// The intermediate image, or a band of its scanlines: pixels plus the opaque-pixel
@@ -128,6 +130,16 @@ impl<'a> Intermediate<'a> {
     pub fn pixels(&self) -> &[Rgba] {
         self.pixels
     }
+
+    /// Applies the per-pixel depth-cue factor to every held scanline.
+    pub fn apply_depth_cue(&mut self, d: &crate::depth::DepthFrame) {
+        if self.width == 0 {
+            return;
+        }
+        for (r, row) in self.pixels.chunks_mut(self.width).enumerate() {
+            d.apply_row(self.row0 + r, row);
+        }
+    }
 }
 
 /// Row-buffer entries the compositor needs for slices `ni` voxels wide (two rows with a
@@ -197,7 +209,8 @@ impl Row<'_> {
         self.dirty = (0, 0);
     }
 
-    fn fill(&mut self, runs: &[u8], voxels: &[Voxel], t: &SliceTables<'_>) {
+    /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor.
+    fn fill(&mut self, runs: &[u8], voxels: &[Voxel], t: &SliceTables<'_>, scale: u32) {
         self.clear();
         let mut v = 0usize;
         let mut lo = usize::MAX;
@@ -209,6 +222,19 @@ impl Row<'_> {
             lo = lo.min(a + 1);
             hi = b + 1;
             match t.mode {
+                Mode::Composite if scale < ONE => {
+                    for (o, vox) in out.iter_mut().zip(src) {
+                        let alpha = t.opacity[vox.opacity as usize] as u32;
+                        let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
+                        let a = fixed::mul(alpha, scale);
+                        *o = [
+                            fixed::mul(c[0], a) as u16,
+                            fixed::mul(c[1], a) as u16,
+                            fixed::mul(c[2], a) as u16,
+                            alpha as u16,
+                        ];
+                    }
+                }
                 Mode::Composite => {
                     for (o, vox) in out.iter_mut().zip(src) {
                         let alpha = t.opacity[vox.opacity as usize] as u32;
@@ -330,6 +356,7 @@ pub fn composite_slice(
     bot.clear();
     // Weights: f weighs the left column / top row.
     let w = fixed::bilinear_weights(ou.f, ov.f);
+    let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let width = img.width;
     // Scanline v reads voxel rows jt = v − n_v − 1 and jt + 1.
     let band_lo = img.row0 as i64;
@@ -349,10 +376,10 @@ pub fn composite_slice(
     };
     let mut top_runs = row_of(jt_lo).0;
     let first = row_of(jt_lo);
-    top.fill(first.0, first.1, tables);
+    top.fill(first.0, first.1, tables, scale);
     for jt in jt_lo..=jt_hi {
         let next = row_of(jt + 1);
-        bot.fill(next.0, next.1, tables);
+        bot.fill(next.0, next.1, tables, scale);
         let v = jt + ov.n as i64 + 1;
         if v >= band_lo && v < band_hi {
             let line = (v as usize - img.row0) * width;

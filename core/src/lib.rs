@@ -23,6 +23,7 @@
 
 pub mod classify;
 pub mod composite;
+pub mod depth;
 pub mod error;
 pub mod fixed;
 pub mod io;

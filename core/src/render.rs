@@ -7,6 +7,7 @@
 
 use crate::classify::ColorTable;
 use crate::composite::{self, Intermediate, Mode, Rgba, SliceTables};
+use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, Error};
 use crate::fixed;
 use crate::shade::{Lighting, ShadeTable};
@@ -25,6 +26,8 @@ pub struct Settings<'a> {
     pub lighting: Option<&'a Lighting>,
     /// Early-ray-termination opacity in `(0, 1]`; 1 disables termination.
     pub ert_threshold: f64,
+    /// Depth cueing (fog), or `None`.
+    pub depth_cue: Option<DepthCue>,
 }
 
 /// Caller-owned buffers for [`render`].
@@ -100,6 +103,8 @@ pub struct Frame {
     pub ert: u32,
     /// Compositing mode.
     pub mode: Mode,
+    /// Depth-cue state, if on.
+    pub depth: Option<DepthFrame>,
 }
 
 impl Frame {
@@ -127,7 +132,12 @@ impl Frame {
         } else {
             fixed::from_f64(settings.ert_threshold)
         };
+        let depth = match (&settings.depth_cue, settings.mode) {
+            (Some(c), Mode::Composite) => Some(DepthFrame::new(c, &view, grid.dims, grid.spacing)?),
+            _ => None,
+        };
         Ok(Frame {
+            depth,
             opacity: crate::classify::opacity_correction(view.step_ratio),
             view,
             ert,
@@ -143,6 +153,7 @@ impl Frame {
             shade,
             mode: self.mode,
             ert: self.ert,
+            depth: self.depth.as_ref(),
         }
     }
 }
@@ -172,6 +183,9 @@ pub fn composite_band<S: SliceSource>(
         source.with_slice(view.axis, k, |slice| {
             composite::composite_slice(img, slice, k, view, tables, rows)
         })??;
+    }
+    if let Some(d) = &frame.depth {
+        img.apply_depth_cue(d);
     }
     Ok(())
 }
@@ -370,6 +384,7 @@ mod tests {
                     color: &color,
                     lighting: if lit { Some(&lighting) } else { None },
                     ert_threshold: ert,
+                    depth_cue: None,
                 };
                 let view = Factorization::new(&grid, &cam).unwrap();
                 let pix = view::max_intermediate_pixels(grid.dims);
@@ -404,6 +419,7 @@ mod tests {
                     } else {
                         fixed::from_f64(ert)
                     },
+                    depth: None,
                 };
                 let [iw, ih] = view.intermediate;
                 let mut p2 = vec![[0u16; 4]; iw * ih];
@@ -454,6 +470,7 @@ mod tests {
             color: &color,
             lighting: None,
             ert_threshold: 0.95,
+            depth_cue: None,
         };
         let cam = Camera {
             rotate_x: 10.0,

@@ -158,7 +158,7 @@ impl ShadeTable {
                 d: to_obj(d),
                 h: to_obj(h),
                 kd: l.color.map(|c| q15(lighting.kd * c)),
-                ks: l.color.map(|c| q15(c)),
+                ks: l.color.map(q15),
             });
         }
         // ks·x^shininess for x = i/1024, Q15, interpolated linearly between entries.
@@ -198,8 +198,8 @@ impl ShadeTable {
                 }
                 None => {
                     for l in &lights {
-                        for c in 0..3 {
-                            d[c] += l.kd[c];
+                        for (dc, kd) in d.iter_mut().zip(l.kd) {
+                            *dc += kd;
                         }
                     }
                 }

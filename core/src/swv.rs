@@ -786,6 +786,12 @@ pub const fn worst_case_capacity(dims: [usize; 3]) -> (usize, usize, usize) {
     (scans, runs, voxels)
 }
 
+/// Bytes of the slice buffers of a [`StreamSource`] sized by [`worst_case_capacity`].
+pub const fn stream_buffer_bytes(dims: [usize; 3]) -> usize {
+    let (scans, runs, voxels) = worst_case_capacity(dims);
+    8 * scans + runs + 4 * voxels
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;
@@ -896,6 +902,7 @@ mod tests {
             color: &lk.color,
             lighting: lk.lighting.as_ref(),
             ert_threshold: 0.95,
+            depth_cue: None,
         };
         let mut ws = std::boxed::Box::new(StaticWorkspace::<2000, 64, 32>::new());
         let mut px = vec![[0u8; 4]; 32 * 32];
@@ -1068,6 +1075,7 @@ mod tests {
             color: &lk.color,
             lighting: lk.lighting.as_ref(),
             ert_threshold: 0.95,
+            depth_cue: None,
         };
         let mut ws = std::boxed::Box::new(StaticWorkspace::<2000, 64, 16>::new());
         let mut px = vec![[0u8; 4]; 256];
@@ -1077,10 +1085,4 @@ mod tests {
         };
         render(&mut s, &cam, &settings, &mut ws.workspace(), &mut sink)
     }
-}
-
-/// Bytes of the slice buffers of a [`StreamSource`] sized by [`worst_case_capacity`].
-pub const fn stream_buffer_bytes(dims: [usize; 3]) -> usize {
-    let (scans, runs, voxels) = worst_case_capacity(dims);
-    8 * scans + runs + 4 * voxels
 }

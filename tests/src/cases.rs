@@ -5,6 +5,7 @@ use crate::metrics;
 use crate::reference::{self, RefMode, RefShading, RefTf, RefView, RefVolume};
 use crate::synth;
 use shearwarp_core::composite::Mode;
+use shearwarp_core::depth::DepthCue;
 use shearwarp_core::shade::Lighting;
 use shearwarp_core::view::Camera;
 use shearwarp_file::scene::{self, Classification, Look, Renderer};
@@ -47,6 +48,10 @@ pub struct Case {
     pub size: usize,
     /// Lowest acceptable PSNR against the reference, dB.
     pub min_psnr: f64,
+    /// Depth cueing.
+    pub depth_cue: Option<DepthCue>,
+    /// Shadows from the first light.
+    pub shadows: bool,
 }
 
 const SPHERE_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (60.0, 0.0), (100.0, 0.5), (255.0, 0.9)];
@@ -81,6 +86,8 @@ macro_rules! case {
             ry: $ry,
             size: 128,
             min_psnr: $psnr,
+            depth_cue: None,
+            shadows: false,
         }
     };
 }
@@ -247,6 +254,40 @@ pub const CASES: &[Case] = &[
         20.0,
         30.0
     ),
+    Case {
+        depth_cue: Some(DepthCue {
+            front: 1.0,
+            density: 2.0,
+        }),
+        ..case!(
+            "spheres_depthcue_30_45",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            30.0,
+            45.0,
+            30.0
+        )
+    },
+    Case {
+        depth_cue: Some(DepthCue {
+            front: 0.9,
+            density: 1.2,
+        }),
+        ..case!(
+            "head64_depthcue_34",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            25.0
+        )
+    },
 ];
 
 /// The workspace's `fixtures/` directory.
@@ -299,6 +340,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         color: scene::color_table(case.color, enc.range).expect("colour"),
         lighting: case.shading.then(Lighting::default),
         ert_threshold: 0.95,
+        depth_cue: case.depth_cue,
     };
     let cam = Camera {
         rotate_x: case.rx,
@@ -343,6 +385,8 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         rotate_y: case.ry,
         width: case.size,
         height: case.size,
+        depth_cue: case.depth_cue.map(|d| (d.front, d.density)),
+        shadows: case.shadows,
     };
     let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
     metrics::to_rgb8(&img)

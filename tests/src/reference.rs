@@ -44,6 +44,11 @@ pub struct RefView {
     pub rotate_y: f64,
     pub width: usize,
     pub height: usize,
+    /// Depth cueing `(front, density)`: colour × front·e^(−density·d), `d` the depth
+    /// normalised to 0..1 over the volume's corners.
+    pub depth_cue: Option<(f64, f64)>,
+    /// Shadows cast toward the first light (needs shading).
+    pub shadows: bool,
 }
 
 impl RefVolume {
@@ -213,9 +218,60 @@ struct Ctx<'a> {
     scale: f64,
     width: usize,
     height: usize,
+    /// `(front, density, depth lo, depth hi)` with depth = −z_camera.
+    depth_cue: Option<(f64, f64, f64, f64)>,
+    /// Transmittance toward the first light at every voxel.
+    shadow: Option<Vec<f64>>,
 }
 
 impl Ctx<'_> {
+    /// Camera-space depth (−z) of an index-space point.
+    fn depth(&self, p: [f64; 3]) -> f64 {
+        let d = self.vol.dims;
+        let s = self.vol.spacing;
+        let phys: [f64; 3] = std::array::from_fn(|a| (p[a] - (d[a] as f64 - 1.0) / 2.0) * s[a]);
+        -dot(self.rot[2], phys)
+    }
+
+    /// Transmittance from voxel `(i, j, k)` toward the first light: post-classified
+    /// opacity marched in steps of 0.25·s_min from one step away from the voxel.
+    fn transmittance_at(&self, ijk: [usize; 3], to_light_idx: [f64; 3]) -> f64 {
+        let d = self.vol.dims;
+        let mut t = 1.0;
+        let mut p = ijk.map(|c| c as f64);
+        loop {
+            for a in 0..3 {
+                p[a] += to_light_idx[a] * self.step;
+            }
+            if (0..3).any(|a| p[a] < 0.0 || p[a] > (d[a] - 1) as f64) {
+                return t;
+            }
+            let v = self.scalar(&cell(d, p));
+            let a = lookup(&self.opacity, v)[0].clamp(0.0, 1.0);
+            if a > 0.0 {
+                t *= (1.0 - a).powf(self.alpha_exp);
+                if t < 1e-4 {
+                    return 0.0;
+                }
+            }
+        }
+    }
+
+    fn shadow_at(&self, c: &Cell) -> f64 {
+        match &self.shadow {
+            None => 1.0,
+            Some(g) => {
+                let d = self.vol.dims;
+                (0..8)
+                    .map(|n| {
+                        let [i, j, k] = c.ijk[n];
+                        c.w[n] * g[i + d[0] * (j + d[1] * k)]
+                    })
+                    .sum()
+            }
+        }
+    }
+
     fn to_index(&self, p: [f64; 3]) -> [f64; 3] {
         let d = self.vol.dims;
         let s = self.vol.spacing;
@@ -270,18 +326,21 @@ impl Ctx<'_> {
         g
     }
 
-    fn shade(&self, sh: &RefShading, col: [f64; 3], g: [f64; 3]) -> [f64; 3] {
+    /// `t0` scales the first light (its shadow transmittance).
+    fn shade(&self, sh: &RefShading, col: [f64; 3], g: [f64; 3], t0: f64) -> [f64; 3] {
         let len = dot(g, g).sqrt();
+        let lt = |i: usize| if i == 0 { t0 } else { 1.0 };
         let (d, s) = if len < 1e-9 {
-            (sh.ka + sh.kd * self.lights.len() as f64, 0.0)
+            let lit: f64 = (0..self.lights.len()).map(lt).sum();
+            (sh.ka + sh.kd * lit, 0.0)
         } else {
             let n_obj = [-g[0] / len, -g[1] / len, -g[2] / len];
             let n = mat_vec(&self.rot, n_obj);
             let mut d = sh.ka;
             let mut s = 0.0;
-            for (l, h) in &self.lights {
-                d += sh.kd * dot(n, *l).abs();
-                s += sh.ks * dot(n, *h).abs().powf(sh.shininess);
+            for (i, (l, h)) in self.lights.iter().enumerate() {
+                d += lt(i) * sh.kd * dot(n, *l).abs();
+                s += lt(i) * sh.ks * dot(n, *h).abs().powf(sh.shininess);
             }
             (d, s)
         };
@@ -329,7 +388,16 @@ impl Ctx<'_> {
                     let a_s = 1.0 - (1.0 - a).powf(self.alpha_exp);
                     let mut col = lookup(&self.color, v);
                     if let Some(sh) = self.shading {
-                        col = self.shade(sh, col, self.gradient(&c));
+                        col = self.shade(sh, col, self.gradient(&c), self.shadow_at(&c));
+                    }
+                    if let Some((front, density, lo, hi)) = self.depth_cue {
+                        let d = if hi > lo {
+                            (self.depth(point(k)) - lo) / (hi - lo)
+                        } else {
+                            0.0
+                        };
+                        let f = front * (-density * d).exp();
+                        col = col.map(|x| x * f);
                     }
                     let w = (1.0 - acc_a) * a_s;
                     for ch in 0..3 {
@@ -389,7 +457,23 @@ pub fn render_reference(
         })
         .unwrap_or_default();
 
-    let ctx = Ctx {
+    let depth_cue = view.depth_cue.map(|(front, density)| {
+        let mut lo = f64::INFINITY;
+        let mut hi = f64::NEG_INFINITY;
+        for c in 0..8 {
+            let phys: [f64; 3] = std::array::from_fn(|a| {
+                let n = vol.dims[a] as f64 - 1.0;
+                (if c >> a & 1 == 1 { n / 2.0 } else { -n / 2.0 }) * s[a]
+            });
+            let z = -dot(rot[2], phys);
+            lo = lo.min(z);
+            hi = hi.max(z);
+        }
+        (front, density, lo, hi)
+    });
+    let mut ctx = Ctx {
+        depth_cue,
+        shadow: None,
         vol,
         mode,
         rot,
@@ -408,6 +492,29 @@ pub fn render_reference(
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .min(h);
+    if view.shadows && !ctx.lights.is_empty() {
+        // Direction toward the first light, in index units per unit physical length.
+        let l_obj = mat_t_vec(&rot, ctx.lights[0].0);
+        let to_light = [l_obj[0] / s[0], l_obj[1] / s[1], l_obj[2] / s[2]];
+        let [nx, ny, nz] = vol.dims;
+        let mut grid = vec![0.0; nx * ny * nz];
+        let planes = Mutex::new(grid.chunks_mut(nx * ny).enumerate());
+        let c = &ctx;
+        std::thread::scope(|scope| {
+            for _ in 0..threads.max(1) {
+                scope.spawn(|| loop {
+                    let next = planes.lock().unwrap().next();
+                    let Some((k, plane)) = next else { break };
+                    for j in 0..ny {
+                        for i in 0..nx {
+                            plane[i + nx * j] = c.transmittance_at([i, j, k], to_light);
+                        }
+                    }
+                });
+            }
+        });
+        ctx.shadow = Some(grid);
+    }
     // Rows are handed out one at a time so uneven rows balance across threads.
     let rows = Mutex::new(out.chunks_mut(w).enumerate());
     std::thread::scope(|scope| {
@@ -453,6 +560,8 @@ mod tests {
             rotate_y: ry,
             width: w,
             height: h,
+            depth_cue: None,
+            shadows: false,
         }
     }
 

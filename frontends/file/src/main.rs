@@ -2,6 +2,7 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use shearwarp_core::composite::Mode;
+use shearwarp_core::depth::DepthCue;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::swv;
 use shearwarp_core::view::Camera;
@@ -127,6 +128,10 @@ struct RenderOpts {
     /// Early ray termination opacity (1 disables it).
     #[arg(long, default_value_t = 0.95)]
     ert: f64,
+    /// Depth cueing FRONT:DENSITY: colour × FRONT·e^(−DENSITY·d), d = 0 at the volume's
+    /// nearest corner and 1 at its farthest.
+    #[arg(long)]
+    depth_cue: Option<String>,
     /// Compositing threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -207,6 +212,7 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
         color,
         lighting,
         ert_threshold: o.ert,
+        depth_cue: o.depth_cue.as_deref().map(parse_depth_cue).transpose()?,
     };
     let camera = Camera {
         rotate_x: o.rotate_x,
@@ -262,6 +268,18 @@ fn encode_raw(raw: &RawVolume, o: &RenderOpts) -> Result<Encoded, Box<dyn Error>
         min_opacity: o.min_opacity,
     };
     Ok(scene::encode(raw, &class)?)
+}
+
+fn parse_depth_cue(s: &str) -> Result<DepthCue, Box<dyn Error>> {
+    let bad = || format!("--depth-cue '{s}': expected FRONT:DENSITY, e.g. 1:1.5");
+    let (f, d) = s.split_once(':').ok_or_else(bad)?;
+    let cue = DepthCue {
+        front: f.trim().parse().map_err(|_| bad())?,
+        density: d.trim().parse().map_err(|_| bad())?,
+    };
+    cue.validate()
+        .map_err(|e| format!("--depth-cue '{s}': {e}"))?;
+    Ok(cue)
 }
 
 fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {

@@ -6,6 +6,7 @@ use shearwarp_core::classify::{
     self, ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel,
 };
 use shearwarp_core::composite::{self, Intermediate, Mode, Rgba};
+use shearwarp_core::depth::DepthCue;
 use shearwarp_core::render::{self, Frame, Settings, Workspace};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Lighting, ShadeTable};
@@ -146,6 +147,8 @@ pub struct Look {
     pub lighting: Option<Lighting>,
     /// Early-ray-termination threshold.
     pub ert_threshold: f64,
+    /// Depth cueing (fog), or `None`.
+    pub depth_cue: Option<DepthCue>,
 }
 
 /// One unit of threaded work: band index, its pixels and its links.
@@ -216,6 +219,7 @@ impl Renderer {
             color: &look.color,
             lighting: look.lighting.as_ref(),
             ert_threshold: look.ert_threshold,
+            depth_cue: look.depth_cue,
         };
         let mut sink = FrameBuffer {
             width: camera.width,

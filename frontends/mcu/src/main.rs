@@ -76,6 +76,7 @@ fn run() -> Result<(), &'static str> {
         color: &look.color,
         lighting: look.lighting.as_ref(),
         ert_threshold: 0.95,
+        depth_cue: None,
     };
 
     cp.SYST.set_clock_source(SystClkSource::Core);
