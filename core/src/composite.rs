@@ -20,6 +20,7 @@ use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
 use crate::rle::RleSlice;
 use crate::shade::ShadeTable;
+use crate::shadow::ShadowLookup;
 use crate::view::{Factorization, SliceOffset};
 
 /// Premultiplied RGBA, Q15 per channel.
@@ -51,6 +52,9 @@ pub struct SliceTables<'a> {
     pub ert: u32,
     /// Depth cueing, if on.
     pub depth: Option<&'a crate::depth::DepthFrame>,
+    /// With shadows: the shading of the first light alone (then `shade` holds the
+    /// ambient term and the other lights).
+    pub shade0: Option<&'a ShadeTable>,
 }
 
 /// The intermediate image, or a band of its scanlines: pixels plus the opaque-pixel
@@ -150,14 +154,14 @@ pub const fn row_buffer_len(ni: usize) -> usize {
 
 /// Non-transparent spans `[start, end)` of one scanline's runs; adjacent runs split at 255
 /// come out as one span.
-struct Spans<'a> {
+pub(crate) struct Spans<'a> {
     runs: &'a [u8],
     next: usize,
     pos: usize,
 }
 
 impl<'a> Spans<'a> {
-    fn new(runs: &'a [u8]) -> Self {
+    pub(crate) fn new(runs: &'a [u8]) -> Self {
         Spans {
             runs,
             next: 0,
@@ -209,8 +213,17 @@ impl Row<'_> {
         self.dirty = (0, 0);
     }
 
-    /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor.
-    fn fill(&mut self, runs: &[u8], voxels: &[Voxel], t: &SliceTables<'_>, scale: u32) {
+    /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor. `shadow`
+    /// gives the first light's transmittance for voxels of row `j`.
+    fn fill(
+        &mut self,
+        runs: &[u8],
+        voxels: &[Voxel],
+        t: &SliceTables<'_>,
+        scale: u32,
+        j: i64,
+        shadow: Option<&ShadowLookup<'_>>,
+    ) {
         self.clear();
         let mut v = 0usize;
         let mut lo = usize::MAX;
@@ -221,8 +234,25 @@ impl Row<'_> {
             v += b - a;
             lo = lo.min(a + 1);
             hi = b + 1;
-            match t.mode {
-                Mode::Composite if scale < ONE => {
+            match (t.mode, shadow, t.shade0) {
+                (Mode::Composite, Some(sh), Some(s0)) => {
+                    for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
+                        let alpha = t.opacity[vox.opacity as usize] as u32;
+                        let base = t.color[vox.scalar as usize];
+                        let rest = t.shade.shade_raw(vox.normal, base);
+                        let lit = s0.shade_raw(vox.normal, base);
+                        let tr = sh.transmittance(a + idx, j);
+                        let am = fixed::mul(alpha, scale);
+                        let mut px = [0u16; 4];
+                        for c in 0..3 {
+                            let v = (rest[c] + fixed::mul(lit[c].min(2 * ONE), tr)).min(ONE);
+                            px[c] = fixed::mul(v, am) as u16;
+                        }
+                        px[3] = alpha as u16;
+                        *o = px;
+                    }
+                }
+                (Mode::Composite, _, _) if scale < ONE => {
                     for (o, vox) in out.iter_mut().zip(src) {
                         let alpha = t.opacity[vox.opacity as usize] as u32;
                         let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
@@ -235,7 +265,7 @@ impl Row<'_> {
                         ];
                     }
                 }
-                Mode::Composite => {
+                (Mode::Composite, _, _) => {
                     for (o, vox) in out.iter_mut().zip(src) {
                         let alpha = t.opacity[vox.opacity as usize] as u32;
                         let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
@@ -247,7 +277,7 @@ impl Row<'_> {
                         ];
                     }
                 }
-                Mode::Mip => {
+                (Mode::Mip, _, _) => {
                     for (o, vox) in out.iter_mut().zip(src) {
                         let g = fixed::from_u8(vox.scalar) as u16;
                         *o = [g; 4];
@@ -282,9 +312,9 @@ fn skip_opaque(links: &mut [u16], u: usize) -> usize {
 /// Merges two sorted span streams into sorted, disjoint pixel spans after translating by
 /// `shift` and widening each by one pixel on the right (a voxel at `i` reaches pixels
 /// `i + shift` and `i + shift + 1`).
-struct MergedSpans<'a> {
-    a: core::iter::Peekable<Spans<'a>>,
-    b: core::iter::Peekable<Spans<'a>>,
+pub(crate) struct MergedSpans<'a> {
+    pub(crate) a: core::iter::Peekable<Spans<'a>>,
+    pub(crate) b: core::iter::Peekable<Spans<'a>>,
 }
 
 impl Iterator for MergedSpans<'_> {
@@ -334,6 +364,7 @@ pub fn composite_slice(
     view: &Factorization,
     tables: &SliceTables<'_>,
     rows: &mut [Rgba],
+    shadow: Option<&ShadowLookup<'_>>,
 ) -> Result<(), Error> {
     let [ni, nj, _] = view.dims;
     if slice.ni != ni || slice.nj != nj {
@@ -376,10 +407,10 @@ pub fn composite_slice(
     };
     let mut top_runs = row_of(jt_lo).0;
     let first = row_of(jt_lo);
-    top.fill(first.0, first.1, tables, scale);
+    top.fill(first.0, first.1, tables, scale, jt_lo, shadow);
     for jt in jt_lo..=jt_hi {
         let next = row_of(jt + 1);
-        bot.fill(next.0, next.1, tables, scale);
+        bot.fill(next.0, next.1, tables, scale, jt + 1, shadow);
         let v = jt + ov.n as i64 + 1;
         if v >= band_lo && v < band_hi {
             let line = (v as usize - img.row0) * width;

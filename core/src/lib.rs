@@ -31,6 +31,7 @@ pub mod normal;
 pub mod render;
 pub mod rle;
 pub mod shade;
+pub mod shadow;
 pub mod source;
 pub mod swv;
 pub mod view;

@@ -11,6 +11,7 @@ use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, Error};
 use crate::fixed;
 use crate::shade::{Lighting, ShadeTable};
+use crate::shadow::{self, ShadowFrame, ShadowLookup};
 use crate::source::SliceSource;
 use crate::view::{self, Camera, Factorization};
 use crate::warp::{self, PixelSink};
@@ -28,6 +29,8 @@ pub struct Settings<'a> {
     pub ert_threshold: f64,
     /// Depth cueing (fog), or `None`.
     pub depth_cue: Option<DepthCue>,
+    /// Shadows cast toward the first light (needs lighting and a shadow workspace).
+    pub shadows: bool,
 }
 
 /// Caller-owned buffers for [`render`].
@@ -42,6 +45,18 @@ pub struct Workspace<'a> {
     pub out_row: &'a mut [[u8; 4]],
     /// Shading table, rebuilt each frame when lighting is on.
     pub shade: &'a mut ShadeTable,
+    /// Buffers for shadows, needed only when [`Settings::shadows`] is set.
+    pub shadow: Option<ShadowWorkspace<'a>>,
+}
+
+/// Buffers for the shadow sweep.
+pub struct ShadowWorkspace<'a> {
+    /// Shadow buffer opacity: [`view::max_intermediate_pixels`] entries.
+    pub alpha: &'a mut [u16],
+    /// Alpha row buffers: [`shadow::row_buffer_len`] of the largest side.
+    pub rows: &'a mut [u16],
+    /// Shading of the first light alone.
+    pub shade0: &'a mut ShadeTable,
 }
 
 /// Buffers sized at compile time: `PIX` intermediate pixels, `ROW` row-buffer entries,
@@ -81,6 +96,7 @@ impl<const PIX: usize, const ROW: usize, const W: usize> StaticWorkspace<PIX, RO
             rows: &mut self.rows,
             out_row: &mut self.out_row,
             shade: &mut self.shade,
+            shadow: None,
         }
     }
 }
@@ -105,6 +121,8 @@ pub struct Frame {
     pub mode: Mode,
     /// Depth-cue state, if on.
     pub depth: Option<DepthFrame>,
+    /// The light's factorization when shadows are on.
+    pub shadow: Option<ShadowFrame>,
 }
 
 impl Frame {
@@ -115,6 +133,7 @@ impl Frame {
         camera: &Camera,
         settings: &Settings<'_>,
         shade: &mut ShadeTable,
+        shade0: Option<&mut ShadeTable>,
     ) -> Result<Self, Error> {
         let view = Factorization::new(grid, camera)?;
         if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
@@ -122,9 +141,36 @@ impl Frame {
                 reason: "early-ray-termination threshold must be in (0, 1]",
             });
         }
-        match settings.lighting {
-            Some(l) => shade.fill(l, &view.rotation)?,
-            None => *shade = ShadeTable::UNSHADED,
+        let mut shadow = None;
+        match (settings.lighting, settings.shadows, settings.mode) {
+            (Some(l), true, Mode::Composite) => {
+                let Some(sh0) = shade0 else {
+                    return Err(Error::BufferTooSmall {
+                        what: "shadow workspace",
+                        needed: 1,
+                        got: 0,
+                    });
+                };
+                let first = l.lights.first().ok_or(Error::BadParameter {
+                    reason: "shadows need at least one light",
+                })?;
+                shadow = Some(ShadowFrame::new(&view, grid, first.direction)?);
+                // Split: ambient and the other lights here, the first light alone in shade0.
+                let mut rest = l.clone();
+                rest.lights.remove(0);
+                shade.fill(&rest, &view.rotation)?;
+                let mut only = l.clone();
+                only.ka = 0.0;
+                only.lights.truncate(1);
+                sh0.fill(&only, &view.rotation)?;
+            }
+            (None, true, Mode::Composite) => {
+                return Err(Error::BadParameter {
+                    reason: "shadows need shading (a light)",
+                })
+            }
+            (Some(l), _, _) => shade.fill(l, &view.rotation)?,
+            (None, _, _) => *shade = ShadeTable::UNSHADED,
         }
         // ERT at 1.0 must never trigger: put the threshold out of reach.
         let ert = if settings.ert_threshold >= 1.0 {
@@ -137,6 +183,7 @@ impl Frame {
             _ => None,
         };
         Ok(Frame {
+            shadow,
             depth,
             opacity: crate::classify::opacity_correction(view.step_ratio),
             view,
@@ -145,9 +192,16 @@ impl Frame {
         })
     }
 
-    /// The tables the compositor reads.
-    pub fn tables<'a>(&'a self, color: &'a ColorTable, shade: &'a ShadeTable) -> SliceTables<'a> {
+    /// The tables the compositor reads (`shade0`: the first light's table when shadows
+    /// are on).
+    pub fn tables<'a>(
+        &'a self,
+        color: &'a ColorTable,
+        shade: &'a ShadeTable,
+        shade0: Option<&'a ShadeTable>,
+    ) -> SliceTables<'a> {
         SliceTables {
+            shade0: if self.shadow.is_some() { shade0 } else { None },
             opacity: &self.opacity,
             color,
             shade,
@@ -160,12 +214,15 @@ impl Frame {
 
 /// Composites every slice, front to back, into the scanlines `img` holds. Threads call
 /// this with disjoint bands of one frame, each with its own source handle and row buffer.
+/// With shadows the band must be the whole intermediate image and `shadow` must hold the
+/// shadow buffer and its row buffers.
 pub fn composite_band<S: SliceSource>(
     source: &mut S,
     frame: &Frame,
     tables: &SliceTables<'_>,
     img: &mut Intermediate<'_>,
     rows: &mut [Rgba],
+    mut shadow: Option<(&mut [u16], &mut [u16])>,
 ) -> Result<(), Error> {
     let view = &frame.view;
     need(
@@ -178,11 +235,44 @@ pub fn composite_band<S: SliceSource>(
             reason: "intermediate image does not match the frame",
         });
     }
+    if let Some(sf) = &frame.shadow {
+        if img.first_row() != 0 || img.pixels().len() != img.width() * img.height() {
+            return Err(Error::BadParameter {
+                reason: "shadows are computed in a single band covering the whole image",
+            });
+        }
+        let Some((alpha, _)) = shadow.as_mut() else {
+            return Err(Error::BufferTooSmall {
+                what: "shadow buffer",
+                needed: sf.size[0] * sf.size[1],
+                got: 0,
+            });
+        };
+        need("shadow buffer", sf.size[0] * sf.size[1], alpha.len())?;
+        alpha[..sf.size[0] * sf.size[1]].fill(0);
+    }
     for idx in 0..view.dims[2] {
         let k = view.slice_at(idx);
-        source.with_slice(view.axis, k, |slice| {
-            composite::composite_slice(img, slice, k, view, tables, rows)
-        })??;
+        match (&frame.shadow, shadow.as_mut()) {
+            (Some(sf), Some((alpha, srows))) => {
+                let [w, h] = sf.size;
+                source.with_slice(view.axis, k, |slice| {
+                    let look = ShadowLookup {
+                        alpha: &alpha[..w * h],
+                        width: w,
+                        height: h,
+                        off: sf.slice_offset(k),
+                    };
+                    composite::composite_slice(img, slice, k, view, tables, rows, Some(&look))?;
+                    shadow::accumulate_slice(alpha, slice, k, sf, srows)
+                })??;
+            }
+            _ => {
+                source.with_slice(view.axis, k, |slice| {
+                    composite::composite_slice(img, slice, k, view, tables, rows, None)
+                })??;
+            }
+        }
     }
     if let Some(d) = &frame.depth {
         img.apply_depth_cue(d);
@@ -199,12 +289,17 @@ pub fn render<S: SliceSource, P: PixelSink>(
     sink: &mut P,
 ) -> Result<(), Error> {
     let grid = source.grid();
-    let frame = Frame::new(&grid, camera, settings, ws.shade)?;
+    let sh0 = ws.shadow.as_mut().map(|s| &mut *s.shade0);
+    let frame = Frame::new(&grid, camera, settings, ws.shade, sh0)?;
     need("out row", camera.width, ws.out_row.len())?;
     let [iw, ih] = frame.view.intermediate;
-    let tables = frame.tables(settings.color, ws.shade);
+    let (shadow_bufs, shade0) = match ws.shadow.as_mut() {
+        Some(s) => (Some((&mut *s.alpha, &mut *s.rows)), Some(&*s.shade0)),
+        None => (None, None),
+    };
+    let tables = frame.tables(settings.color, ws.shade, shade0);
     let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
-    composite_band(source, &frame, &tables, &mut img, ws.rows)?;
+    composite_band(source, &frame, &tables, &mut img, ws.rows, shadow_bufs)?;
     warp::warp(img.pixels(), &frame.view, ws.out_row, sink)
 }
 
@@ -385,6 +480,7 @@ mod tests {
                     lighting: if lit { Some(&lighting) } else { None },
                     ert_threshold: ert,
                     depth_cue: None,
+                    shadows: false,
                 };
                 let view = Factorization::new(&grid, &cam).unwrap();
                 let pix = view::max_intermediate_pixels(grid.dims);
@@ -400,6 +496,7 @@ mod tests {
                         rows: &mut rows,
                         out_row: &mut out_row,
                         shade: &mut shade,
+                        shadow: None,
                     };
                     let mut sink = FrameBuffer {
                         width: 48,
@@ -420,6 +517,7 @@ mod tests {
                         fixed::from_f64(ert)
                     },
                     depth: None,
+                    shade0: None,
                 };
                 let [iw, ih] = view.intermediate;
                 let mut p2 = vec![[0u16; 4]; iw * ih];
@@ -471,6 +569,7 @@ mod tests {
             lighting: None,
             ert_threshold: 0.95,
             depth_cue: None,
+            shadows: false,
         };
         let cam = Camera {
             rotate_x: 10.0,

@@ -210,6 +210,15 @@ impl ShadeTable {
         Ok(())
     }
 
+    /// `c·D + S` per channel for `code`, unclamped (up to about 3·ONE).
+    #[inline(always)]
+    pub fn shade_raw(&self, code: u16, c: [u16; 3]) -> [u32; 3] {
+        let i = (code as usize).min(normal::CODES - 1);
+        let d = self.diffuse[i];
+        let s = self.specular[i];
+        [0, 1, 2].map(|ch| fixed::mul(c[ch] as u32, d[ch] as u32) + s[ch] as u32)
+    }
+
     /// Shades a Q15 colour with the entry for `code`: `min(1, c·D + S)` per channel.
     #[inline(always)]
     pub fn shade(&self, code: u16, c: [u16; 3]) -> [u32; 3] {

@@ -903,6 +903,7 @@ mod tests {
             lighting: lk.lighting.as_ref(),
             ert_threshold: 0.95,
             depth_cue: None,
+            shadows: false,
         };
         let mut ws = std::boxed::Box::new(StaticWorkspace::<2000, 64, 32>::new());
         let mut px = vec![[0u8; 4]; 32 * 32];
@@ -1076,6 +1077,7 @@ mod tests {
             lighting: lk.lighting.as_ref(),
             ert_threshold: 0.95,
             depth_cue: None,
+            shadows: false,
         };
         let mut ws = std::boxed::Box::new(StaticWorkspace::<2000, 64, 16>::new());
         let mut px = vec![[0u8; 4]; 256];

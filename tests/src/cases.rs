@@ -288,6 +288,34 @@ pub const CASES: &[Case] = &[
             25.0
         )
     },
+    Case {
+        shadows: true,
+        ..case!(
+            "spheres_shadows_20_30",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            20.0,
+            30.0,
+            28.0
+        )
+    },
+    Case {
+        shadows: true,
+        ..case!(
+            "head64_shadows_face",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -90.0,
+            0.0,
+            25.0
+        )
+    },
 ];
 
 /// The workspace's `fixtures/` directory.
@@ -341,6 +369,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         lighting: case.shading.then(Lighting::default),
         ert_threshold: 0.95,
         depth_cue: case.depth_cue,
+        shadows: case.shadows,
     };
     let cam = Camera {
         rotate_x: case.rx,

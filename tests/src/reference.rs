@@ -288,14 +288,18 @@ impl Ctx<'_> {
         const EPS: f64 = 1e-9;
         let mut t0 = f64::NEG_INFINITY;
         let mut t1 = f64::INFINITY;
+        // Each voxel is a unit cell: the volume spans [−0.5, n − 0.5] in index space, the
+        // field is extended to the faces by clamping (as the shear-warp slices, one voxel
+        // thick, and their bilinear footprint do).
         for ((&a, &b), &n) in origin.iter().zip(&self.dir_idx).zip(&self.vol.dims) {
-            let hi = (n - 1) as f64;
+            let lo = -0.5;
+            let hi = n as f64 - 0.5;
             if b.abs() < 1e-12 {
-                if a < -EPS || a > hi + EPS {
+                if a < lo - EPS || a > hi + EPS {
                     return None;
                 }
             } else {
-                let ta = -a / b;
+                let ta = (lo - a) / b;
                 let tb = (hi - a) / b;
                 t0 = t0.max(ta.min(tb));
                 t1 = t1.min(ta.max(tb));
@@ -354,9 +358,12 @@ impl Ctx<'_> {
         let Some((t0, t1)) = self.span(origin) else {
             return [0.0; 3];
         };
-        let count = ((t1 - t0) / self.step + 1e-9).floor() as usize + 1;
+        // Midpoint rule: `count` equal steps of about `self.step` cover [t0, t1] exactly.
+        let count = ((t1 - t0) / self.step).round().max(1.0) as usize;
+        let step = (t1 - t0) / count as f64;
+        let alpha_exp = self.alpha_exp * step / self.step;
         let point = |k: usize| {
-            let t = t0 + k as f64 * self.step;
+            let t = t0 + (k as f64 + 0.5) * step;
             [
                 origin[0] + t * self.dir_idx[0],
                 origin[1] + t * self.dir_idx[1],
@@ -385,7 +392,7 @@ impl Ctx<'_> {
                     if a <= 0.0 {
                         continue;
                     }
-                    let a_s = 1.0 - (1.0 - a).powf(self.alpha_exp);
+                    let a_s = 1.0 - (1.0 - a).powf(alpha_exp);
                     let mut col = lookup(&self.color, v);
                     if let Some(sh) = self.shading {
                         col = self.shade(sh, col, self.gradient(&c), self.shadow_at(&c));
@@ -651,8 +658,8 @@ mod tests {
             color: vec![(0.0, [1.0; 3])],
         };
         let img = render_reference(&vol, &tf, None, RefMode::Composite, &view(0.0, 0.0, 32, 32));
-        // 8 units of depth sampled every 0.25 inclusive of both ends: 33 samples.
-        let expect = 1.0 - (1.0 - a).powf(33.0 * 0.25);
+        // 9 voxels deep (unit cells, [−0.5, 8.5]): 9 units of path.
+        let expect = 1.0 - (1.0 - a).powf(9.0);
         let got = img[16 * 32 + 16][0];
         assert!((got - expect).abs() < 1e-9, "got {got}, expected {expect}");
     }

@@ -132,6 +132,10 @@ struct RenderOpts {
     /// nearest corner and 1 at its farthest.
     #[arg(long)]
     depth_cue: Option<String>,
+    /// Shadows cast toward the first light (needs --shading; the light must be within
+    /// the view's principal-axis cone, on the viewer's side).
+    #[arg(long)]
+    shadows: bool,
     /// Compositing threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -213,6 +217,7 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
         lighting,
         ert_threshold: o.ert,
         depth_cue: o.depth_cue.as_deref().map(parse_depth_cue).transpose()?,
+        shadows: o.shadows,
     };
     let camera = Camera {
         rotate_x: o.rotate_x,

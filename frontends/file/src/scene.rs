@@ -7,9 +7,10 @@ use shearwarp_core::classify::{
 };
 use shearwarp_core::composite::{self, Intermediate, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
-use shearwarp_core::render::{self, Frame, Settings, Workspace};
+use shearwarp_core::render::{self, Frame, Settings, ShadowWorkspace, Workspace};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Lighting, ShadeTable};
+use shearwarp_core::shadow;
 use shearwarp_core::source::{RleVolume, SliceSource};
 use shearwarp_core::view::{self, Camera};
 use shearwarp_core::warp::FrameBuffer;
@@ -149,6 +150,9 @@ pub struct Look {
     pub ert_threshold: f64,
     /// Depth cueing (fog), or `None`.
     pub depth_cue: Option<DepthCue>,
+    /// Shadows toward the first light (rendered on one thread: the shadow buffer is
+    /// swept with the slices).
+    pub shadows: bool,
 }
 
 /// One unit of threaded work: band index, its pixels and its links.
@@ -170,6 +174,9 @@ pub struct Renderer {
     out_row: Vec<[u8; 4]>,
     shade: Box<ShadeTable>,
     threads: usize,
+    shadow_alpha: Vec<u16>,
+    shadow_rows: Vec<u16>,
+    shade0: Box<ShadeTable>,
 }
 
 impl Renderer {
@@ -195,6 +202,9 @@ impl Renderer {
             out_row: vec![[0; 4]; max_width],
             shade: Box::new(ShadeTable::UNSHADED),
             threads,
+            shadow_alpha: Vec::new(),
+            shadow_rows: vec![0; shadow::row_buffer_len(m)],
+            shade0: Box::new(ShadeTable::UNSHADED),
         }
     }
 
@@ -220,25 +230,40 @@ impl Renderer {
             lighting: look.lighting.as_ref(),
             ert_threshold: look.ert_threshold,
             depth_cue: look.depth_cue,
+            shadows: look.shadows,
         };
         let mut sink = FrameBuffer {
             width: camera.width,
             pixels: &mut frame_px,
         };
-        if self.threads == 1 {
+        if self.threads == 1 || look.shadows {
+            let shadow = if look.shadows {
+                let n = self.pixels.len();
+                if self.shadow_alpha.len() < n {
+                    self.shadow_alpha.resize(n, 0);
+                }
+                Some(ShadowWorkspace {
+                    alpha: &mut self.shadow_alpha,
+                    rows: &mut self.shadow_rows,
+                    shade0: &mut self.shade0,
+                })
+            } else {
+                None
+            };
             let mut ws = Workspace {
                 pixels: &mut self.pixels,
                 links: &mut self.links,
                 rows: &mut self.rows[0],
                 out_row: &mut self.out_row,
                 shade: &mut self.shade,
+                shadow,
             };
             render::render(source, camera, &settings, &mut ws, &mut sink)?;
             return Ok(frame_px);
         }
         let grid = source.grid();
-        let frame = Frame::new(&grid, camera, &settings, &mut self.shade)?;
-        let tables = frame.tables(&look.color, &self.shade);
+        let frame = Frame::new(&grid, camera, &settings, &mut self.shade, None)?;
+        let tables = frame.tables(&look.color, &self.shade, None);
         let [iw, ih] = frame.view.intermediate;
         let n = iw * ih;
         if self.pixels.len() < n {
@@ -276,7 +301,7 @@ impl Renderer {
                             let row0 = i * Self::BAND_ROWS;
                             let rows_here = Self::BAND_ROWS.min(ih - row0);
                             let mut img = Intermediate::band(iw, ih, row0, rows_here, p, l)?;
-                            render::composite_band(&mut src, frame, tables, &mut img, rows)?;
+                            render::composite_band(&mut src, frame, tables, &mut img, rows, None)?;
                         }
                     })
                 })

@@ -77,6 +77,7 @@ fn run() -> Result<(), &'static str> {
         lighting: look.lighting.as_ref(),
         ert_threshold: 0.95,
         depth_cue: None,
+        shadows: false,
     };
 
     cp.SYST.set_clock_source(SystClkSource::Core);
@@ -91,7 +92,7 @@ fn run() -> Result<(), &'static str> {
     {
         let ws = work.workspace();
         let grid = shearwarp_core::source::SliceSource::grid(source);
-        shearwarp_core::render::Frame::new(&grid, &CAMERA, &settings, ws.shade)
+        shearwarp_core::render::Frame::new(&grid, &CAMERA, &settings, ws.shade, None)
             .map_err(|_| "frame setup failed")?;
     }
     let s1 = ticks(&cp.SYST);
