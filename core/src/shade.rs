@@ -276,6 +276,40 @@ mod tests {
     }
 
     #[test]
+    fn coloured_lights_add_per_channel() {
+        let mut lights = Vec::new();
+        for (d, c) in [
+            ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
+            ([0.0, 0.0, 1.0], [0.0, 0.0, 0.5]),
+        ] {
+            lights
+                .push(Light {
+                    direction: d,
+                    color: c,
+                })
+                .unwrap();
+        }
+        let l = Lighting {
+            ka: 0.1,
+            kd: 0.6,
+            ks: 0.0,
+            shininess: 1.0,
+            lights,
+        };
+        let mut t = ShadeTable::UNSHADED.clone();
+        t.fill(&l, &ID).unwrap();
+        let code = normal::encode(0, 0, -1000);
+        let nz = normal::decode(code).unwrap()[2].abs();
+        let out = t
+            .shade(code, [ONE as u16; 3])
+            .map(|x| x as f64 / ONE as f64);
+        let expect = [0.1 + 0.6 * nz, 0.1, 0.1 + 0.3 * nz];
+        for c in 0..3 {
+            assert!((out[c] - expect[c]).abs() < 2e-3, "{out:?} vs {expect:?}");
+        }
+    }
+
+    #[test]
     fn bad_lighting_is_rejected() {
         let mut l = Lighting::default();
         l.lights[0].direction = [0.0; 3];

@@ -199,3 +199,68 @@ pub fn accumulate_slice(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::classify::Voxel;
+    use crate::rle::ScanIndex;
+    use crate::view::Camera;
+
+    #[test]
+    fn an_opaque_half_slice_shadows_exactly_the_voxels_behind_it() {
+        // 8×8×8, looking down −z with the light straight behind the viewer: the light
+        // shares the axis and has no shear, so slice k's shadow falls on the same (i, j).
+        let grid = Grid::new([8, 8, 8], [1.0; 3]).unwrap();
+        let cam = Camera {
+            rotate_x: 0.0,
+            rotate_y: 0.0,
+            width: 16,
+            height: 16,
+        };
+        let view = Factorization::new(&grid, &cam).unwrap();
+        let f = ShadowFrame::new(&view, &grid, [0.0, 0.0, 1.0]).unwrap();
+        assert_eq!(f.size, [9, 9]);
+        // Slice: left half (i < 4) opaque, right half empty, every scanline.
+        let runs = [[0u8, 4, 4, 0]; 8];
+        let runs: &[u8] = runs.as_flattened();
+        let vox = [Voxel {
+            opacity: 255,
+            scalar: 0,
+            normal: 0,
+        }; 32];
+        let scans: [ScanIndex; 9] = core::array::from_fn(|j| ScanIndex {
+            run: 4 * j as u32,
+            voxel: 4 * j as u32,
+        });
+        let slice = RleSlice {
+            ni: 8,
+            nj: 8,
+            base: ScanIndex::default(),
+            runs,
+            voxels: &vox,
+            scans: &scans,
+        };
+        slice.validate().unwrap();
+        let mut alpha = [0u16; 81];
+        let mut rows = [0u16; 20];
+        accumulate_slice(&mut alpha, &slice, 7, &f, &mut rows).unwrap();
+        let look = ShadowLookup {
+            alpha: &alpha,
+            width: 9,
+            height: 9,
+            off: f.slice_offset(6),
+        };
+        for j in 0..8 {
+            for i in 0..8 {
+                let t = look.transmittance(i, j);
+                let expect = if i < 4 { 0 } else { ONE };
+                assert_eq!(t, expect, "voxel ({i}, {j})");
+            }
+        }
+        // A light outside the view's principal-axis cone is refused.
+        assert!(ShadowFrame::new(&view, &grid, [1.0, 0.0, 0.2]).is_err());
+        // So is a light behind the volume (the sweep would run against it).
+        assert!(ShadowFrame::new(&view, &grid, [0.0, 0.0, -1.0]).is_err());
+    }
+}

@@ -6,7 +6,7 @@ use crate::reference::{self, RefMode, RefShading, RefTf, RefView, RefVolume};
 use crate::synth;
 use shearwarp_core::composite::Mode;
 use shearwarp_core::depth::DepthCue;
-use shearwarp_core::shade::Lighting;
+use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
 use shearwarp_file::scene::{self, Classification, Look, Renderer};
 use shearwarp_file::volume::{self, RawVolume, Voxels};
@@ -52,6 +52,25 @@ pub struct Case {
     pub depth_cue: Option<DepthCue>,
     /// Shadows from the first light.
     pub shadows: bool,
+    /// Two coloured lights (warm key, blue fill) instead of the default white light.
+    pub two_lights: bool,
+}
+
+/// The lighting a case uses.
+pub fn lighting(case: &Case) -> Lighting {
+    let mut l = Lighting::default();
+    if case.two_lights {
+        l.lights.clear();
+        let _ = l.lights.push(Light {
+            direction: [0.5, 0.5, 1.0],
+            color: [1.0, 0.8, 0.6],
+        });
+        let _ = l.lights.push(Light {
+            direction: [-0.8, -0.3, 0.5],
+            color: [0.3, 0.45, 1.0],
+        });
+    }
+    l
 }
 
 const SPHERE_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (60.0, 0.0), (100.0, 0.5), (255.0, 0.9)];
@@ -88,6 +107,7 @@ macro_rules! case {
             min_psnr: $psnr,
             depth_cue: None,
             shadows: false,
+            two_lights: false,
         }
     };
 }
@@ -316,6 +336,34 @@ pub const CASES: &[Case] = &[
             25.0
         )
     },
+    Case {
+        two_lights: true,
+        ..case!(
+            "spheres_two_lights_25_m35",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            25.0,
+            -35.0,
+            30.0
+        )
+    },
+    Case {
+        two_lights: true,
+        ..case!(
+            "head64_two_lights_34",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            25.0
+        )
+    },
 ];
 
 /// The workspace's `fixtures/` directory.
@@ -366,7 +414,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
     let look = Look {
         mode: case.mode,
         color: scene::color_table(case.color, enc.range).expect("colour"),
-        lighting: case.shading.then(Lighting::default),
+        lighting: case.shading.then(|| lighting(case)),
         ert_threshold: 0.95,
         depth_cue: case.depth_cue,
         shadows: case.shadows,
@@ -389,13 +437,14 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         Voxels::U8(d) => RefVolume::from_u8(raw.dims, raw.spacing, d),
         Voxels::U16(d) => RefVolume::from_u16(raw.dims, raw.spacing, d),
     };
-    let l = Lighting::default();
+    let l = lighting(case);
     let shading = RefShading {
         ka: l.ka,
         kd: l.kd,
         ks: l.ks,
         shininess: l.shininess,
         lights: l.lights.iter().map(|x| x.direction).collect(),
+        light_colors: l.lights.iter().map(|x| x.color).collect(),
     };
     let tf = RefTf {
         opacity: case.opacity.to_vec(),

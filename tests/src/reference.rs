@@ -21,6 +21,8 @@ pub struct RefShading {
     pub ks: f64,
     pub shininess: f64,
     pub lights: Vec<[f64; 3]>,
+    /// RGB of each light; lights without an entry are white.
+    pub light_colors: Vec<[f64; 3]>,
 }
 
 /// Piecewise-linear transfer functions over scalar value.
@@ -209,8 +211,8 @@ struct Ctx<'a> {
     opacity: Vec<(f64, [f64; 1])>,
     color: Vec<(f64, [f64; 3])>,
     shading: Option<&'a RefShading>,
-    /// Normalised (L, H) per light.
-    lights: Vec<([f64; 3], [f64; 3])>,
+    /// Normalised (L, H) and RGB per light.
+    lights: Vec<([f64; 3], [f64; 3], [f64; 3])>,
     /// Index-space change per unit of physical ray length.
     dir_idx: [f64; 3],
     step: f64,
@@ -334,21 +336,27 @@ impl Ctx<'_> {
     fn shade(&self, sh: &RefShading, col: [f64; 3], g: [f64; 3], t0: f64) -> [f64; 3] {
         let len = dot(g, g).sqrt();
         let lt = |i: usize| if i == 0 { t0 } else { 1.0 };
-        let (d, s) = if len < 1e-9 {
-            let lit: f64 = (0..self.lights.len()).map(lt).sum();
-            (sh.ka + sh.kd * lit, 0.0)
+        let mut d = [sh.ka; 3];
+        let mut s = [0.0; 3];
+        if len < 1e-9 {
+            for (i, (_, _, c)) in self.lights.iter().enumerate() {
+                for ch in 0..3 {
+                    d[ch] += lt(i) * sh.kd * c[ch];
+                }
+            }
         } else {
             let n_obj = [-g[0] / len, -g[1] / len, -g[2] / len];
             let n = mat_vec(&self.rot, n_obj);
-            let mut d = sh.ka;
-            let mut s = 0.0;
-            for (i, (l, h)) in self.lights.iter().enumerate() {
-                d += lt(i) * sh.kd * dot(n, *l).abs();
-                s += lt(i) * sh.ks * dot(n, *h).abs().powf(sh.shininess);
+            for (i, (l, h, c)) in self.lights.iter().enumerate() {
+                let diff = lt(i) * sh.kd * dot(n, *l).abs();
+                let spec = lt(i) * sh.ks * dot(n, *h).abs().powf(sh.shininess);
+                for ch in 0..3 {
+                    d[ch] += diff * c[ch];
+                    s[ch] += spec * c[ch];
+                }
             }
-            (d, s)
-        };
-        col.map(|c| (c * d + s).min(1.0))
+        }
+        [0, 1, 2].map(|ch| (col[ch] * d[ch] + s[ch]).min(1.0))
     }
 
     fn pixel(&self, px: usize, py: usize) -> [f64; 3] {
@@ -456,9 +464,11 @@ pub fn render_reference(
         .map(|sh| {
             sh.lights
                 .iter()
-                .map(|&l| {
+                .enumerate()
+                .map(|(i, &l)| {
                     let l = normalize(l);
-                    (l, normalize([l[0], l[1], l[2] + 1.0]))
+                    let c = sh.light_colors.get(i).copied().unwrap_or([1.0; 3]);
+                    (l, normalize([l[0], l[1], l[2] + 1.0]), c)
                 })
                 .collect()
         })
@@ -743,6 +753,7 @@ mod tests {
             ks: 0.2,
             shininess: 8.0,
             lights: vec![[0.0, 0.0, 2.0]],
+            light_colors: vec![],
         };
         let (w, h) = (24, 24);
         let centre = |sh: &RefShading, ry: f64| {

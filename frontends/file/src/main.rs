@@ -103,8 +103,8 @@ struct RenderOpts {
     /// Turn on Phong/Blinn shading.
     #[arg(long)]
     shading: bool,
-    /// Light direction x,y,z in camera space (x right, y up, z toward viewer); repeat
-    /// for up to 4 lights.
+    /// Light direction x,y,z in camera space (x right, y up, z toward viewer), with an
+    /// optional colour: "x,y,z:#rrggbb"; repeat for up to 4 lights.
     #[arg(long, allow_hyphen_values = true)]
     light: Vec<String>,
     /// Ambient coefficient.
@@ -298,11 +298,19 @@ fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {
     if !o.light.is_empty() {
         l.lights.clear();
         for s in &o.light {
-            let d = tfspec::parse_vec3(s)?;
+            let (dir, color) = match s.split_once(':') {
+                Some((d, c)) => {
+                    let rgb = tfspec::parse_color(&format!("0:{}", c.trim()))
+                        .map_err(|_| format!("--light '{s}': colour must be #rrggbb or #rgb"))?;
+                    (d, rgb[0].1.map(|x| x as f64 / 255.0))
+                }
+                None => (s.as_str(), [1.0; 3]),
+            };
+            let d = tfspec::parse_vec3(dir)?;
             l.lights
                 .push(Light {
                     direction: d,
-                    color: [1.0; 3],
+                    color,
                 })
                 .map_err(|_| "at most 4 lights (--light) are supported")?;
         }
