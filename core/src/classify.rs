@@ -210,6 +210,18 @@ impl<'a> OpacityTf<'a> {
         Ok(OpacityTf { points })
     }
 
+    /// Opacity per 8-bit quantised scalar for data quantised over raw `range` (see
+    /// [`quantizer`]), Q15: the table post-classification and pre-integration use.
+    pub fn build_quantized(&self, range: (u16, u16)) -> [u16; 256] {
+        let mut t = [0u16; 256];
+        let (lo, hi) = (range.0 as f64, range.1 as f64);
+        for (q, out) in t.iter_mut().enumerate() {
+            let v = lo + q as f64 * (hi - lo) / 255.0;
+            *out = fixed::from_f64(eval(self.points, v)[0]) as u16;
+        }
+        t
+    }
+
     /// Fills `table[v]` with the 8-bit opacity of raw value `v`. `table` must hold
     /// [`Scalars::value_count`] entries for the data it will classify.
     pub fn build_table(&self, table: &mut [u8]) {

@@ -135,6 +135,15 @@ impl<'a> Intermediate<'a> {
         self.pixels
     }
 
+    /// Pixels and links of the held scanline starting at pixel index `line` (relative to
+    /// the band), `width` long.
+    pub(crate) fn scanline_mut(&mut self, line: usize, width: usize) -> (&mut [Rgba], &mut [u16]) {
+        (
+            &mut self.pixels[line..line + width],
+            &mut self.links[line..line + width],
+        )
+    }
+
     /// Applies the per-pixel depth-cue factor to every held scanline.
     pub fn apply_depth_cue(&mut self, d: &crate::depth::DepthFrame) {
         if self.width == 0 {
@@ -294,7 +303,7 @@ impl Row<'_> {
 /// Follows opaque-pixel links from `u` to the first pixel at or after it that is not
 /// opaque (or `links.len()`), compressing the path so later walks take one step.
 #[inline]
-fn skip_opaque(links: &mut [u16], u: usize) -> usize {
+pub(crate) fn skip_opaque(links: &mut [u16], u: usize) -> usize {
     let mut t = u;
     while t < links.len() && links[t] != 0 {
         t += links[t] as usize;

@@ -28,6 +28,7 @@ pub mod error;
 pub mod fixed;
 pub mod io;
 pub mod normal;
+pub mod postclass;
 pub mod render;
 pub mod rle;
 pub mod shade;

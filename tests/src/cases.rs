@@ -6,6 +6,7 @@ use crate::reference::{self, RefMode, RefShading, RefTf, RefView, RefVolume};
 use crate::synth;
 use shearwarp_core::composite::Mode;
 use shearwarp_core::depth::DepthCue;
+use shearwarp_core::postclass::PostMode;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
 use shearwarp_file::scene::{self, Classification, Look, Renderer};
@@ -54,6 +55,8 @@ pub struct Case {
     pub shadows: bool,
     /// Two coloured lights (warm key, blue fill) instead of the default white light.
     pub two_lights: bool,
+    /// Render the unclassified volume in this mode instead of the classified RLE path.
+    pub post: Option<PostMode>,
 }
 
 /// The lighting a case uses.
@@ -88,6 +91,8 @@ const HEAD_COLOR: &[(f64, [u8; 3])] = &[
     (128.0, [224, 176, 144]),
     (255.0, [255, 255, 240]),
 ];
+/// A narrow peak around the skin/scalp boundary: hard for pre-classification.
+const HEAD_PEAK: &[(f64, f64)] = &[(0.0, 0.0), (66.0, 0.0), (76.0, 0.9), (86.0, 0.0)];
 const BOX_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (100.0, 0.0), (200.0, 0.3)];
 const GREY: &[(f64, [u8; 3])] = &[(0.0, [0, 0, 0]), (255.0, [255, 255, 255])];
 const MIP_OPACITY: &[(f64, f64)] = &[(0.0, 0.0), (1.0, 1.0)];
@@ -108,6 +113,7 @@ macro_rules! case {
             depth_cue: None,
             shadows: false,
             two_lights: false,
+            post: None,
         }
     };
 }
@@ -364,6 +370,101 @@ pub const CASES: &[Case] = &[
             25.0
         )
     },
+    Case {
+        post: Some(PostMode::PostClassified),
+        ..case!(
+            "ml_post_20_45",
+            Vol::MarschnerLobb(41),
+            ML_OPACITY,
+            ML_COLOR,
+            true,
+            Mode::Composite,
+            20.0,
+            45.0,
+            25.0
+        )
+    },
+    Case {
+        post: Some(PostMode::PreIntegrated),
+        ..case!(
+            "ml_preint_20_45",
+            Vol::MarschnerLobb(41),
+            ML_OPACITY,
+            ML_COLOR,
+            true,
+            Mode::Composite,
+            20.0,
+            45.0,
+            25.0
+        )
+    },
+    case!(
+        "head64_peak_34",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        HEAD_PEAK,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        -70.0,
+        -35.0,
+        20.0
+    ),
+    Case {
+        post: Some(PostMode::PreIntegrated),
+        ..case!(
+            "head64_peak_preint_34",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_PEAK,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            25.0
+        )
+    },
+    Case {
+        post: Some(PostMode::Isosurface(120.0)),
+        ..case!(
+            "spheres_iso_120",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            30.0,
+            45.0,
+            25.0
+        )
+    },
+    Case {
+        post: Some(PostMode::Isosurface(70.0)),
+        ..case!(
+            "head64_iso_70_34",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            22.0
+        )
+    },
+    Case {
+        post: Some(PostMode::PreIntegrated),
+        ..case!(
+            "ml_preint_z",
+            Vol::MarschnerLobb(41),
+            ML_OPACITY,
+            ML_COLOR,
+            false,
+            Mode::Composite,
+            0.0,
+            0.0,
+            25.0
+        )
+    },
 ];
 
 /// The workspace's `fixtures/` directory.
@@ -405,6 +506,28 @@ pub fn render_ours(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
 
 /// As [`render_ours`], compositing with `threads` threads.
 pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<[u8; 3]> {
+    if let Some(mode) = case.post {
+        let vol = scene::DenseVolume::new(raw).expect("dense volume");
+        let look = Look {
+            mode: Mode::Composite,
+            color: scene::color_table(case.color, vol.range).expect("colour"),
+            lighting: case.shading.then(|| lighting(case)),
+            ert_threshold: 0.95,
+            depth_cue: None,
+            shadows: false,
+        };
+        let cam = Camera {
+            rotate_x: case.rx,
+            rotate_y: case.ry,
+            width: case.size,
+            height: case.size,
+        };
+        let mut r = scene::PostRenderer::new(&vol);
+        let frame = r
+            .render(&vol, mode, case.opacity, &look, &cam)
+            .expect("render");
+        return frame.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    }
     let class = Classification {
         opacity: case.opacity.to_vec(),
         gradient: None,
@@ -454,9 +577,10 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
             .map(|&(v, c)| (v, c.map(|x| x as f64 / 255.0)))
             .collect(),
     };
-    let mode = match case.mode {
-        Mode::Composite => RefMode::Composite,
-        Mode::Mip => RefMode::Mip,
+    let mode = match (case.post, case.mode) {
+        (Some(PostMode::Isosurface(v)), _) => RefMode::Iso(v),
+        (_, Mode::Composite) => RefMode::Composite,
+        (_, Mode::Mip) => RefMode::Mip,
     };
     let view = RefView {
         rotate_x: case.rx,

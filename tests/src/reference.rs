@@ -33,10 +33,12 @@ pub struct RefTf {
     pub color: Vec<(f64, [f64; 3])>,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum RefMode {
     Composite,
     Mip,
+    /// First crossing of this scalar value, shaded with the trilinear gradient there.
+    Iso(f64),
 }
 
 /// Rotation angles in degrees: Y is applied first, then X.
@@ -379,6 +381,27 @@ impl Ctx<'_> {
             ]
         };
         match self.mode {
+            RefMode::Iso(iso) => {
+                let mut prev: Option<([f64; 3], f64)> = None;
+                for k in 0..count {
+                    let p = point(k);
+                    let v = self.scalar(&cell(self.vol.dims, p));
+                    if let Some((pp, pv)) = prev {
+                        if (pv - iso) * (v - iso) <= 0.0 && pv != v {
+                            let t = (iso - pv) / (v - pv);
+                            let x: [f64; 3] = std::array::from_fn(|a| pp[a] + t * (p[a] - pp[a]));
+                            let c = cell(self.vol.dims, x);
+                            let col = lookup(&self.color, iso);
+                            return match self.shading {
+                                Some(sh) => self.shade(sh, col, self.gradient(&c), 1.0),
+                                None => col,
+                            };
+                        }
+                    }
+                    prev = Some((p, v));
+                }
+                [0.0; 3]
+            }
             RefMode::Mip => {
                 let mut max = f64::NEG_INFINITY;
                 for k in 0..count {

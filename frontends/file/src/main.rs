@@ -4,8 +4,8 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use shearwarp_core::composite::Mode;
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::shade::{Light, Lighting};
-use shearwarp_core::swv;
 use shearwarp_core::view::Camera;
+use shearwarp_core::{postclass, swv};
 use shearwarp_file::scene::{self, Classification, Encoded, Look, Renderer};
 use shearwarp_file::tfspec;
 use shearwarp_file::volume::{self, RawVolume};
@@ -75,8 +75,22 @@ enum Command {
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 enum ModeArg {
+    /// Classified RLE volume, "over" compositing.
     Composite,
+    /// Maximum intensity projection.
     Mip,
+    /// Unclassified volume, scalars interpolated then classified.
+    Post,
+    /// Unclassified volume, pre-integrated slabs between slices.
+    Preint,
+    /// Isosurface at --iso.
+    Iso,
+}
+
+impl ModeArg {
+    fn dense(self) -> bool {
+        matches!(self, ModeArg::Post | ModeArg::Preint | ModeArg::Iso)
+    }
 }
 
 #[derive(Args)]
@@ -119,9 +133,12 @@ struct RenderOpts {
     /// Specular exponent.
     #[arg(long, default_value_t = 20.0)]
     shininess: f64,
-    /// Compositing mode.
+    /// Rendering mode.
     #[arg(long, value_enum, default_value_t = ModeArg::Composite)]
     mode: ModeArg,
+    /// Isovalue for --mode iso, in raw voxel units.
+    #[arg(long)]
+    iso: Option<f64>,
     /// Voxels with opacity at or below this are skipped as transparent.
     #[arg(long, default_value_t = 0.02)]
     min_opacity: f64,
@@ -159,7 +176,7 @@ fn default_opacity(range: (u16, u16), mode: ModeArg) -> Vec<(f64, f64)> {
     match mode {
         // Everything above the minimum takes part in the maximum.
         ModeArg::Mip => vec![(lo, 0.0), (lo + 1.0, 1.0)],
-        ModeArg::Composite => vec![
+        _ => vec![
             (lo, 0.0),
             (lo + 0.15 * span, 0.0),
             (lo + 0.4 * span, 0.1),
@@ -210,8 +227,8 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
     };
     let look = Look {
         mode: match o.mode {
-            ModeArg::Composite => Mode::Composite,
             ModeArg::Mip => Mode::Mip,
+            _ => Mode::Composite,
         },
         color,
         lighting,
@@ -236,6 +253,75 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
         name,
         dims: encoded.grid.dims,
         encoded,
+        look,
+        camera,
+    })
+}
+
+struct Dense {
+    vol: scene::DenseVolume,
+    renderer: scene::PostRenderer,
+    mode: postclass::PostMode,
+    opacity: Vec<(f64, f64)>,
+    look: Look,
+    camera: Camera,
+}
+
+fn prepare_dense(path: &std::path::Path, o: &RenderOpts) -> Result<Dense, Box<dyn Error>> {
+    if scene::is_swv(path) {
+        return Err(format!(
+            "{}: --mode post/preint/iso need the unclassified volume, not a .swv",
+            path.display()
+        )
+        .into());
+    }
+    let (width, height) = tfspec::parse_size(&o.size)?;
+    let raw = load_raw(path, o)?;
+    let vol = scene::DenseVolume::new(&raw)?;
+    let mode = match o.mode {
+        ModeArg::Post => postclass::PostMode::PostClassified,
+        ModeArg::Preint => postclass::PostMode::PreIntegrated,
+        _ => {
+            let iso = o
+                .iso
+                .ok_or("--mode iso needs --iso VALUE (raw voxel units)")?;
+            if !iso.is_finite() {
+                return Err("--iso must be a finite number".into());
+            }
+            postclass::PostMode::Isosurface(vol.quantize(iso))
+        }
+    };
+    let opacity = match &o.opacity {
+        Some(s) => tfspec::parse_opacity(s)?,
+        None => default_opacity(vol.range, o.mode),
+    };
+    let color_pts = match &o.color {
+        Some(s) => tfspec::parse_color(s)?,
+        None => default_color(vol.range),
+    };
+    let look = Look {
+        mode: Mode::Composite,
+        color: scene::color_table(&color_pts, vol.range)?,
+        lighting: o.shading.then(|| cli_lighting(o)).transpose()?,
+        ert_threshold: o.ert,
+        depth_cue: None,
+        shadows: false,
+    };
+    if o.depth_cue.is_some() || o.shadows {
+        return Err("--depth-cue and --shadows work with --mode composite only".into());
+    }
+    let camera = Camera {
+        rotate_x: o.rotate_x,
+        rotate_y: o.rotate_y,
+        width,
+        height,
+    };
+    let renderer = scene::PostRenderer::new(&vol);
+    Ok(Dense {
+        vol,
+        renderer,
+        mode,
+        opacity,
         look,
         camera,
     })
@@ -320,6 +406,60 @@ fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {
 
 fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
     match cli.command {
+        Command::Render {
+            volume,
+            output,
+            opts,
+        } if opts.mode.dense() => {
+            let mut d = prepare_dense(&volume, &opts)?;
+            let frame = d
+                .renderer
+                .render(&d.vol, d.mode, &d.opacity, &d.look, &d.camera)?;
+            scene::save_png(&output, d.camera.width, d.camera.height, &frame)
+                .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
+            eprintln!("{} -> {}", volume.display(), output.display());
+        }
+        Command::Bench {
+            volume,
+            frames,
+            opts,
+        } if opts.mode.dense() => {
+            if frames == 0 {
+                return Err("--frames must be at least 1".into());
+            }
+            let t0 = Instant::now();
+            let mut d = prepare_dense(&volume, &opts)?;
+            let preprocess = t0.elapsed().as_secs_f64() * 1e3;
+            // Every frame changes the transfer function (the ramp shifts by 4% of the
+            // range back and forth), so each time includes reclassification.
+            let span = (d.vol.range.1 as f64 - d.vol.range.0 as f64).max(1.0);
+            let mut times = Vec::with_capacity(frames);
+            for i in 0..frames {
+                let mut cam = d.camera;
+                cam.rotate_y += 360.0 * i as f64 / frames as f64;
+                let shift = if i % 2 == 0 { 0.0 } else { 0.04 * span };
+                let op: Vec<(f64, f64)> = d.opacity.iter().map(|&(v, a)| (v + shift, a)).collect();
+                let t = Instant::now();
+                let frame = d.renderer.render(&d.vol, d.mode, &op, &d.look, &cam)?;
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+                std::hint::black_box(frame);
+            }
+            times.sort_by(f64::total_cmp);
+            println!(
+                "volume={} mode={:?} image={}x{} (every frame after a transfer-function change)",
+                volume.display(),
+                d.mode,
+                d.camera.width,
+                d.camera.height
+            );
+            println!(
+                "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
+                frames,
+                times[frames / 2],
+                times[0],
+                preprocess
+            );
+        }
         Command::Render {
             volume,
             output,

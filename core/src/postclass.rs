@@ -1,0 +1,452 @@
+//! Rendering an unclassified volume: post-classification, pre-integrated classification
+//! between adjacent slices, and isosurfaces (Rezk-Salama 2001, ch. 3–4; the pre-integrated
+//! shear-warp paper), with fast reclassification through min-max bricks
+//! (Lacroute 1995, §4.3: a coherence structure plus a summed table over the transfer
+//! function finds transparent regions without touching their voxels).
+//!
+//! The volume is kept dense (8-bit quantised scalar and normal code per voxel, the same
+//! [`Voxel`] records as the classified path with the opacity ignored), so a new transfer
+//! function costs one pass over the bricks, not a re-encode.
+//!
+//! - **Bricks.** 8³ voxels, each storing the min and max scalar over the brick grown by
+//!   two voxels on every side: that halo covers every voxel a pixel of a slab can
+//!   interpolate (two voxels in i, rows j..j+1 of both slices, which the shear can shift
+//!   by one, and the next slice). A brick is skipped when the transfer function is zero
+//!   over its whole value range, found in O(1) from a prefix count of visible values:
+//!   testing the range, not the endpoints, matters for pre-integration, where two
+//!   transparent endpoint values can enclose an opaque one.
+//! - **Post-classification.** Each slice's scalar is interpolated bilinearly and then
+//!   classified (opacity and colour interpolated linearly between table entries).
+//! - **Pre-integration.** The slab between adjacent slices takes its front and back
+//!   scalars from bilinear interpolation in each slice at the ray's position; a
+//!   256×256 table, rebuilt when the transfer function or the slab length changes, holds
+//!   the colour and opacity of a linear ramp between them, integrated front to back in 16
+//!   steps with opacity corrected for the slab length.
+//! - **Isosurface.** The first slab whose front and back scalars bracket the isovalue
+//!   sets the pixel to the isovalue's colour, shaded with the interpolated lighting, and
+//!   makes it opaque.
+//!
+//! Shading uses the per-frame [`ShadeTable`]: each tap's diffuse and specular factors are
+//! interpolated with the same weights as the scalar. Each voxel is a unit cell: a pixel
+//! samples a slice only where its position lies within `[−0.5, n − 0.5]`, and taps
+//! beyond the edge repeat the outer voxels.
+
+use crate::classify::{ColorTable, Grid, Voxel};
+use crate::composite::{Intermediate, Rgba};
+use crate::error::{need, Error};
+use crate::fixed::{self, ONE};
+use crate::shade::ShadeTable;
+use crate::view::{Camera, Factorization};
+use crate::warp::{self, PixelSink};
+
+/// Brick edge in voxels.
+pub const BRICK: usize = 8;
+const HALO: usize = 2;
+
+/// Number of bricks for a volume of `dims`.
+pub const fn brick_count(dims: [usize; 3]) -> usize {
+    dims[0].div_ceil(BRICK) * dims[1].div_ceil(BRICK) * dims[2].div_ceil(BRICK)
+}
+
+/// Computes each brick's `(min, max)` scalar over the brick and its two-voxel halo.
+pub fn build_bricks(grid: &Grid, voxels: &[Voxel], out: &mut [(u8, u8)]) -> Result<(), Error> {
+    let d = grid.dims;
+    need("voxels", grid.voxel_count(), voxels.len())?;
+    need("bricks", brick_count(d), out.len())?;
+    let nb = d.map(|n| n.div_ceil(BRICK));
+    for bz in 0..nb[2] {
+        for by in 0..nb[1] {
+            for bx in 0..nb[0] {
+                let range = |b: usize, n: usize| {
+                    (
+                        (b * BRICK).saturating_sub(HALO),
+                        ((b + 1) * BRICK + HALO).min(n),
+                    )
+                };
+                let (x0, x1) = range(bx, d[0]);
+                let (y0, y1) = range(by, d[1]);
+                let (z0, z1) = range(bz, d[2]);
+                let mut lo = u8::MAX;
+                let mut hi = 0u8;
+                for z in z0..z1 {
+                    for y in y0..y1 {
+                        let row = (z * d[1] + y) * d[0];
+                        for v in &voxels[row + x0..row + x1] {
+                            lo = lo.min(v.scalar);
+                            hi = hi.max(v.scalar);
+                        }
+                    }
+                }
+                out[(bz * nb[1] + by) * nb[0] + bx] = (lo, hi);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What to render.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PostMode {
+    /// Interpolate scalars in each slice, then classify.
+    PostClassified,
+    /// Classify the slab between adjacent slices with a pre-integrated table.
+    PreIntegrated,
+    /// First crossing of this 8-bit quantised scalar value (fractional allowed).
+    Isosurface(f64),
+}
+
+/// Per-frame settings for [`render`].
+pub struct PostSettings<'a> {
+    /// Mode.
+    pub mode: PostMode,
+    /// Opacity per unit smallest spacing per quantised scalar, Q15.
+    pub opacity: &'a [u16; 256],
+    /// Colour per quantised scalar, Q15.
+    pub color: &'a ColorTable,
+    /// Lighting, or `None`.
+    pub lighting: Option<&'a crate::shade::Lighting>,
+    /// Early-ray-termination opacity.
+    pub ert_threshold: f64,
+}
+
+/// Caller buffers for [`render`].
+pub struct PostWorkspace<'a> {
+    /// Intermediate pixels ([`crate::view::max_intermediate_pixels`]).
+    pub pixels: &'a mut [Rgba],
+    /// Opaque-pixel links, as many.
+    pub links: &'a mut [u16],
+    /// One flag per brick ([`brick_count`]).
+    pub visible: &'a mut [bool],
+    /// Pre-integration table, 65 536 entries (only for [`PostMode::PreIntegrated`]).
+    pub preint: &'a mut [Rgba],
+    /// Shading table.
+    pub shade: &'a mut ShadeTable,
+    /// One output row.
+    pub out_row: &'a mut [[u8; 4]],
+}
+
+/// Flags bricks whose value range holds any scalar with non-zero opacity (for the
+/// isosurface: any range containing the isovalue). Cost: one lookup per brick.
+pub fn classify_bricks(
+    bricks: &[(u8, u8)],
+    opacity: &[u16; 256],
+    mode: PostMode,
+    visible: &mut [bool],
+) -> Result<(), Error> {
+    need("brick flags", bricks.len(), visible.len())?;
+    // prefix[v + 1] = number of values <= v with non-zero opacity.
+    let mut prefix = [0u16; 257];
+    for v in 0..256 {
+        prefix[v + 1] = prefix[v] + (opacity[v] != 0) as u16;
+    }
+    for (flag, &(lo, hi)) in visible.iter_mut().zip(bricks) {
+        *flag = match mode {
+            PostMode::Isosurface(iso) => (lo as f64) <= iso && iso <= hi as f64,
+            _ => prefix[hi as usize + 1] != prefix[lo as usize],
+        };
+    }
+    Ok(())
+}
+
+const SUBSTEPS: u32 = 16;
+
+/// Builds the pre-integration table for slabs `ratio` smallest spacings long:
+/// entry `front·256 + back` is the premultiplied RGBA of a linear ramp from `front` to
+/// `back`, composited front to back in 16 steps.
+pub fn build_preintegration(
+    opacity: &[u16; 256],
+    color: &ColorTable,
+    ratio: f64,
+    table: &mut [Rgba],
+) -> Result<(), Error> {
+    need("pre-integration table", 65536, table.len())?;
+    let sub = crate::classify::opacity_correction(ratio / SUBSTEPS as f64);
+    // Opacity per sub-step per scalar, from the 8-bit-indexed correction of the Q15 TF.
+    let mut a_sub = [0u32; 256];
+    for (v, a) in a_sub.iter_mut().enumerate() {
+        let a8 = ((opacity[v] as u32 * 255 + (1 << 14)) >> 15).min(255) as usize;
+        // Interpolate the correction linearly in the 8-bit opacity for Q15 precision.
+        let lo = sub[a8] as u32;
+        *a = lo;
+    }
+    for f in 0..256u32 {
+        for b in 0..256u32 {
+            let mut acc = [0u32; 4];
+            for t in 0..SUBSTEPS {
+                // Sample at the sub-step midpoint, rounded to the nearest table entry.
+                let num = f * (2 * SUBSTEPS - 2 * t - 1) + b * (2 * t + 1);
+                let s = ((num + SUBSTEPS) / (2 * SUBSTEPS)) as usize;
+                let a = a_sub[s];
+                if a == 0 {
+                    continue;
+                }
+                let w = fixed::mul(ONE - acc[3], a);
+                let c = color[s];
+                for ch in 0..3 {
+                    acc[ch] += fixed::mul(c[ch] as u32, w);
+                }
+                acc[3] += w;
+            }
+            table[(f * 256 + b) as usize] = acc.map(|x| x.min(ONE) as u16);
+        }
+    }
+    Ok(())
+}
+
+/// Dense access to the permuted volume.
+struct Dense<'a> {
+    voxels: &'a [Voxel],
+    n: [usize; 3],
+    stride: [usize; 3],
+}
+
+impl Dense<'_> {
+    /// The voxel at `(i, j, k)`, coordinates clamped to the volume (the field extends
+    /// to the faces of the outer voxels' unit cells, as in the reference).
+    #[inline(always)]
+    fn at(&self, i: i64, j: i64, k: usize) -> Option<&Voxel> {
+        let i = i.clamp(0, self.n[0] as i64 - 1) as usize;
+        let j = j.clamp(0, self.n[1] as i64 - 1) as usize;
+        self.voxels
+            .get(i * self.stride[0] + j * self.stride[1] + k.min(self.n[2] - 1) * self.stride[2])
+    }
+}
+
+/// A bilinear sample in one slice: scalar (Q8) and interpolated shading (Q15).
+struct Sample {
+    s: u32,
+    d: [u32; 3],
+    sp: [u32; 3],
+}
+
+#[inline(always)]
+fn sample(vol: &Dense<'_>, shade: &ShadeTable, i: i64, j: i64, k: usize, w: &[u32; 4]) -> Sample {
+    let taps = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
+    let mut s = 0u32;
+    let mut d = [0u32; 3];
+    let mut sp = [0u32; 3];
+    for (&(ti, tj), &wt) in taps.iter().zip(w) {
+        if wt == 0 {
+            continue;
+        }
+        if let Some(v) = vol.at(ti, tj, k) {
+            s += wt * v.scalar as u32;
+            let idx = (v.normal as usize).min(crate::normal::CODES - 1);
+            let dd = shade.diffuse[idx];
+            let ss = shade.specular[idx];
+            for c in 0..3 {
+                d[c] += wt * dd[c] as u32;
+                sp[c] += wt * ss[c] as u32;
+            }
+        }
+    }
+    Sample {
+        s: (s + (1 << 6)) >> 7, // Q15 weights · u8 → Q8
+        d: d.map(|x| (x + (1 << 14)) >> 15),
+        sp: sp.map(|x| (x + (1 << 14)) >> 15),
+    }
+}
+
+/// Linear interpolation in a 256-entry table at a Q8 position.
+#[inline(always)]
+fn lerp_table(t: &[u16; 256], s: u32) -> u32 {
+    let i = ((s >> 8) as usize).min(255);
+    let f = s & 255;
+    let a = t[i] as u32;
+    let b = t[(i + 1).min(255)] as u32;
+    (a * (256 - f) + b * f + 128) >> 8
+}
+
+#[inline(always)]
+fn lerp_color(t: &ColorTable, s: u32) -> [u32; 3] {
+    let i = ((s >> 8) as usize).min(255);
+    let f = s & 255;
+    let a = t[i];
+    let b = t[(i + 1).min(255)];
+    [0, 1, 2].map(|c| (a[c] as u32 * (256 - f) + b[c] as u32 * f + 128) >> 8)
+}
+
+/// Renders one frame of a dense classified-free volume.
+#[allow(clippy::too_many_arguments)]
+pub fn render(
+    grid: &Grid,
+    voxels: &[Voxel],
+    bricks: &[(u8, u8)],
+    camera: &Camera,
+    settings: &PostSettings<'_>,
+    ws: &mut PostWorkspace<'_>,
+    sink: &mut impl PixelSink,
+) -> Result<(), Error> {
+    need("voxels", grid.voxel_count(), voxels.len())?;
+    need("bricks", brick_count(grid.dims), bricks.len())?;
+    need("out row", camera.width, ws.out_row.len())?;
+    let view = Factorization::new(grid, camera)?;
+    match settings.lighting {
+        Some(l) => ws.shade.fill(l, &view.rotation)?,
+        None => *ws.shade = ShadeTable::UNSHADED,
+    }
+    classify_bricks(bricks, settings.opacity, settings.mode, ws.visible)?;
+    if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
+        return Err(Error::BadParameter {
+            reason: "early-ray-termination threshold must be in (0, 1]",
+        });
+    }
+    let ert = if settings.ert_threshold >= 1.0 {
+        ONE + 1
+    } else {
+        fixed::from_f64(settings.ert_threshold)
+    };
+    // Per-slice opacity for post-classification (correction applied in Q15).
+    let mut corr = [0u16; 256];
+    let c8 = crate::classify::opacity_correction(view.step_ratio);
+    for (v, c) in corr.iter_mut().enumerate() {
+        let a8 = ((settings.opacity[v] as u32 * 255 + (1 << 14)) >> 15).min(255) as usize;
+        *c = c8[a8];
+    }
+    if settings.mode == PostMode::PreIntegrated {
+        build_preintegration(settings.opacity, settings.color, view.step_ratio, ws.preint)?;
+    }
+    let iso_q8 = match settings.mode {
+        PostMode::Isosurface(v) => {
+            if !(v.is_finite() && (0.0..=255.0).contains(&v)) {
+                return Err(Error::BadParameter {
+                    reason: "isovalue must be within the quantised range 0..255",
+                });
+            }
+            (v * 256.0 + 0.5) as u32
+        }
+        _ => 0,
+    };
+
+    let [iw, ih] = view.intermediate;
+    let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
+    let p = view.axis.permutation();
+    let ostride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
+    let vol = Dense {
+        voxels,
+        n: view.dims,
+        stride: [ostride[p[0]], ostride[p[1]], ostride[p[2]]],
+    };
+    let nb_obj = grid.dims.map(|n| n.div_ceil(BRICK));
+    let nb = [nb_obj[p[0]], nb_obj[p[1]], nb_obj[p[2]]];
+    let bstride_obj = [1, nb_obj[0], nb_obj[0] * nb_obj[1]];
+    let bstride = [bstride_obj[p[0]], bstride_obj[p[1]], bstride_obj[p[2]]];
+    let nk = view.dims[2];
+    let (ni, nj) = (view.dims[0] as i64, view.dims[1] as i64);
+    let slabs = match settings.mode {
+        PostMode::PostClassified => nk,
+        _ => nk.saturating_sub(1),
+    };
+    for idx in 0..slabs {
+        let kf = view.slice_at(idx);
+        let kb = if settings.mode == PostMode::PostClassified {
+            kf
+        } else {
+            view.slice_at(idx + 1)
+        };
+        let [fu, fv] = view.slice_offset(kf);
+        let [bu, bv] = view.slice_offset(kb);
+        let wf = fixed::bilinear_weights(fu.f, fv.f);
+        let wb = fixed::bilinear_weights(bu.f, bv.f);
+        let bk = (kf / BRICK).min(nb[2] - 1);
+        for v in 0..ih {
+            let jt = v as i64 - fv.n as i64 - 1;
+            if jt < -1 || jt >= view.dims[1] as i64 {
+                continue;
+            }
+            let jb = v as i64 - bv.n as i64 - 1;
+            let vpos = (v as i64 - fv.n as i64) * ONE as i64 - fv.f as i64;
+            let row_in = vpos >= -(ONE as i64 / 2) && vpos <= (2 * nj - 1) * (ONE as i64 / 2);
+            let bj = (((jt + 1).max(0) as usize) / BRICK).min(nb[1] - 1);
+            let line = v * iw;
+            let brow = bk * bstride[2] + bj * bstride[1];
+            for bi in 0..nb[0] {
+                if !ws.visible[brow + bi * bstride[0]] {
+                    continue;
+                }
+                // Pixels whose right voxel (u − n − 1 + 1) falls in this brick; the last
+                // brick also takes the pixel past the volume's edge.
+                let r0 = bi * BRICK;
+                let r1 = if bi + 1 == nb[0] {
+                    view.dims[0] + 1
+                } else {
+                    r0 + BRICK
+                };
+                let u0 = (r0 as i64 + fu.n as i64).clamp(0, iw as i64) as usize;
+                let u1 = (r1 as i64 + fu.n as i64).clamp(0, iw as i64) as usize;
+                let (pixels, links) = img.scanline_mut(line, iw);
+                let mut u = u0;
+                while u < u1 {
+                    if links[u] != 0 {
+                        u = crate::composite::skip_opaque(links, u);
+                        continue;
+                    }
+                    let il = u as i64 - fu.n as i64 - 1;
+                    // Position u − n − f of the sample in the slice, in halves of Q15.
+                    let pos = (u as i64 - fu.n as i64) * ONE as i64 - fu.f as i64;
+                    if pos < -(ONE as i64 / 2) || pos > (2 * ni - 1) * (ONE as i64 / 2) || !row_in {
+                        u += 1;
+                        continue;
+                    }
+                    let f = sample(&vol, ws.shade, il, jt, kf, &wf);
+                    let px = &mut pixels[u];
+                    let (rgb, a) = match settings.mode {
+                        PostMode::PostClassified => {
+                            let a = lerp_table(&corr, f.s);
+                            let c = lerp_color(settings.color, f.s);
+                            let rgb = [0, 1, 2]
+                                .map(|ch| (fixed::mul(c[ch], f.d[ch]) + f.sp[ch]).min(ONE));
+                            (rgb.map(|x| fixed::mul(x, a)), a)
+                        }
+                        PostMode::PreIntegrated => {
+                            let ilb = u as i64 - bu.n as i64 - 1;
+                            let b = sample(&vol, ws.shade, ilb, jb, kb, &wb);
+                            let fi = ((f.s + 128) >> 8).min(255) as usize;
+                            let bi_ = ((b.s + 128) >> 8).min(255) as usize;
+                            let e = ws.preint[fi * 256 + bi_];
+                            let a = e[3] as u32;
+                            let rgb = [0, 1, 2].map(|ch| {
+                                let d = (f.d[ch] + b.d[ch]) / 2;
+                                let s = (f.sp[ch] + b.sp[ch]) / 2;
+                                (fixed::mul(e[ch] as u32, d) + fixed::mul(a, s)).min(a)
+                            });
+                            (rgb, a)
+                        }
+                        PostMode::Isosurface(_) => {
+                            let ilb = u as i64 - bu.n as i64 - 1;
+                            let b = sample(&vol, ws.shade, ilb, jb, kb, &wb);
+                            let (lo, hi) = (f.s.min(b.s), f.s.max(b.s));
+                            if iso_q8 < lo || iso_q8 > hi || lo == hi {
+                                u += 1;
+                                continue;
+                            }
+                            // Position of the crossing between front (0) and back (1).
+                            let t = ((iso_q8 as i64 - f.s as i64) * ONE as i64
+                                / (b.s as i64 - f.s as i64))
+                                .clamp(0, ONE as i64) as u32;
+                            let c = lerp_color(settings.color, iso_q8);
+                            let rgb = [0, 1, 2].map(|ch| {
+                                let d = fixed::mul(f.d[ch], ONE - t) + fixed::mul(b.d[ch], t);
+                                let s = fixed::mul(f.sp[ch], ONE - t) + fixed::mul(b.sp[ch], t);
+                                (fixed::mul(c[ch], d) + s).min(ONE)
+                            });
+                            (rgb, ONE)
+                        }
+                    };
+                    if a != 0 {
+                        let tr = ONE - px[3] as u32;
+                        for ch in 0..3 {
+                            px[ch] = (px[ch] as u32 + fixed::mul(rgb[ch], tr)).min(ONE) as u16;
+                        }
+                        px[3] = (px[3] as u32 + fixed::mul(a, tr)).min(ONE) as u16;
+                        if px[3] as u32 >= ert {
+                            links[u] = 1;
+                        }
+                    }
+                    u += 1;
+                }
+            }
+        }
+    }
+    warp::warp(img.pixels(), &view, ws.out_row, sink)
+}
