@@ -136,6 +136,9 @@ struct RenderOpts {
     /// Rendering mode.
     #[arg(long, value_enum, default_value_t = ModeArg::Composite)]
     mode: ModeArg,
+    /// Same as --mode preint: pre-integrated classification between adjacent slices.
+    #[arg(long)]
+    preintegrated: bool,
     /// Isovalue for --mode iso, in raw voxel units.
     #[arg(long)]
     iso: Option<f64>,
@@ -404,7 +407,18 @@ fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {
     Ok(l)
 }
 
-fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
+fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
+    if let Command::Render { opts, .. }
+    | Command::Bench { opts, .. }
+    | Command::Encode { opts, .. } = &mut cli.command
+    {
+        if opts.preintegrated {
+            if opts.mode != ModeArg::Composite && opts.mode != ModeArg::Preint {
+                return Err("--preintegrated conflicts with --mode".into());
+            }
+            opts.mode = ModeArg::Preint;
+        }
+    }
     match cli.command {
         Command::Render {
             volume,
