@@ -58,6 +58,18 @@ pub fn warp(
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
+    warp_rows(px, view, 0..view.image[1], row, sink)
+}
+
+/// Warps output rows `rows` only (threads can split the final image between them; each
+/// row is computed independently, so the result does not depend on the split).
+pub fn warp_rows(
+    px: &[Rgba],
+    view: &Factorization,
+    rows: core::ops::Range<usize>,
+    row: &mut [[u8; 4]],
+    sink: &mut impl PixelSink,
+) -> Result<(), Error> {
     let [w, h] = view.image;
     need("warp row", w, row.len())?;
     let [iwu, ihu] = view.intermediate;
@@ -68,7 +80,7 @@ pub fn warp(
     let du = to_fixed(m[0][0]);
     let dv = to_fixed(m[1][0]);
     let one = 1i64 << FRAC;
-    for y in 0..h {
+    for y in rows.start..rows.end.min(h) {
         let yc = y as f64 + 0.5;
         let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
         let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);

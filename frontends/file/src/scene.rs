@@ -155,6 +155,29 @@ pub struct Look {
     pub shadows: bool,
 }
 
+/// A sink for a horizontal strip of the frame (rows `first_row..`).
+struct StripSink<'a> {
+    first_row: usize,
+    width: usize,
+    pixels: &'a mut [[u8; 4]],
+}
+
+impl warp::PixelSink for StripSink<'_> {
+    fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error> {
+        let start = (y - self.first_row) * self.width;
+        let got = self.pixels.len();
+        self.pixels
+            .get_mut(start..start + row.len())
+            .ok_or(Error::BufferTooSmall {
+                what: "frame strip",
+                needed: start + row.len(),
+                got,
+            })?
+            .copy_from_slice(row);
+        Ok(())
+    }
+}
+
 /// One unit of threaded work: band index, its pixels and its links.
 type BandJob<'a> = (usize, &'a mut [Rgba], &'a mut [u16]);
 
@@ -181,7 +204,7 @@ pub struct Renderer {
 
 impl Renderer {
     /// Scanlines per work unit in threaded rendering.
-    pub const BAND_ROWS: usize = 8;
+    pub const BAND_ROWS: usize = 16;
 
     /// Allocates for any view of `grid` at images up to `max_width` wide, one thread.
     pub fn new(grid: &Grid, max_width: usize) -> Self {
@@ -314,7 +337,36 @@ impl Renderer {
             Ok(())
         });
         result?;
-        warp::warp(&self.pixels[..n], &frame.view, &mut self.out_row, &mut sink)?;
+        // The warp is split by output rows the same way.
+        let w = camera.width;
+        let strip = camera.height.div_ceil(self.threads).max(1);
+        let pixels = &self.pixels[..n];
+        let view = &frame.view;
+        std::thread::scope(|scope| -> Result<(), Error> {
+            let handles: Vec<_> = sink
+                .pixels
+                .chunks_mut(strip * w)
+                .enumerate()
+                .map(|(i, chunk)| {
+                    scope.spawn(move || -> Result<(), Error> {
+                        let mut row = vec![[0u8; 4]; w];
+                        let mut strip_sink = StripSink {
+                            first_row: i * strip,
+                            width: w,
+                            pixels: chunk,
+                        };
+                        let rows = i * strip..(i + 1) * strip;
+                        warp::warp_rows(pixels, view, rows, &mut row, &mut strip_sink)
+                    })
+                })
+                .collect();
+            for h in handles {
+                h.join().map_err(|_| Error::Source {
+                    reason: "a warp thread panicked",
+                })??;
+            }
+            Ok(())
+        })?;
         Ok(frame_px)
     }
 }
