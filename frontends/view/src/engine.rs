@@ -1,0 +1,457 @@
+//! The render thread: owns both levels of the volume, re-encodes them when the
+//! classification changes, and renders the newest request.
+//!
+//! Progressive refinement (after Ryan 1992): the window asks for a **preview** (the
+//! half-resolution copy) on every input and for the **full** level once input stops.
+//! Requests carry a generation number; the window bumps the shared `latest` counter on
+//! every input, and a full-level frame in progress checks it before each slice
+//! ([`crate::render::Interruptible`]), so new input interrupts refinement at the next
+//! slice. Previews are never interrupted (they take a few milliseconds).
+//!
+//! After a window/level change only the axis copy the view needs is re-encoded
+//! ([`crate::classifier::LevelRle`]): synchronously for the preview level (a few
+//! milliseconds), on a helper thread for the full level, so previews go on while it
+//! works.
+
+use crate::classifier::{Classifier, Encoding, LevelRle};
+use crate::downsample::{self, Half};
+use crate::preset::{self, PRESETS};
+use crate::render::{self, Compositor, ImageMap, Interruptible};
+use crate::state::{self, ViewState};
+use shearwarp_core::composite::Mode;
+use shearwarp_core::rle::Axis;
+use shearwarp_core::shade::Lighting;
+use shearwarp_core::view::{Camera, Factorization};
+use shearwarp_core::Error;
+use shearwarp_file::scene::{self, Classification, Look};
+use shearwarp_file::volume::RawVolume;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, TryRecvError};
+use std::sync::{Arc, OnceLock};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Which level a frame is rendered from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quality {
+    /// The half-resolution copy.
+    Preview,
+    /// The volume as loaded.
+    Full,
+}
+
+impl Quality {
+    /// Short name for the title bar.
+    pub fn name(self) -> &'static str {
+        match self {
+            Quality::Preview => "preview 1/2",
+            Quality::Full => "full",
+        }
+    }
+}
+
+/// A request for a frame.
+#[derive(Clone, Copy, Debug)]
+pub struct Job {
+    pub generation: u64,
+    pub quality: Quality,
+    pub view: ViewState,
+}
+
+/// How a request ended.
+pub enum Outcome {
+    Frame {
+        /// RGBA8, premultiplied over black, window-sized.
+        pixels: Vec<[u8; 4]>,
+        /// Compositing + warp.
+        render_ms: f64,
+        /// Classification + encoding this frame had to wait for (0 if cached).
+        encode_ms: f64,
+        /// Whether shadows were rendered.
+        shadows: bool,
+        /// Why something asked for was left out (shadows the core cannot do here).
+        note: Option<String>,
+    },
+    /// New input arrived first.
+    Cancelled,
+    Failed(String),
+}
+
+/// A finished request.
+pub struct Done {
+    pub job: Job,
+    pub outcome: Outcome,
+}
+
+/// Fixed rendering parameters.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// Window size.
+    pub size: [usize; 2],
+    /// Compositing threads.
+    pub threads: usize,
+    /// Voxels at or below this opacity are skipped (full level).
+    pub min_opacity: f64,
+    /// Early ray termination.
+    pub ert: f64,
+    /// Lighting when shading is on.
+    pub lighting: Lighting,
+}
+
+/// The volume and its derived data.
+pub struct Scene {
+    pub full: Arc<RawVolume>,
+    pub half: Half,
+    /// Raw range the presets are expressed over (of the full volume).
+    pub range: (u16, u16),
+    pub settings: Settings,
+}
+
+impl Scene {
+    /// Prepares `raw` (builds the half-resolution copy).
+    pub fn new(raw: RawVolume, settings: Settings) -> Scene {
+        let half = downsample::half(&raw);
+        let range = preset::data_range(&raw);
+        Scene {
+            full: Arc::new(raw),
+            half,
+            range,
+            settings,
+        }
+    }
+
+    /// The full-level classification of `view`.
+    pub fn classification(&self, view: &ViewState) -> Classification {
+        Classification {
+            opacity: preset::opacity_points(&PRESETS[view.preset], view.wl, self.range),
+            gradient: None,
+            min_opacity: self.settings.min_opacity,
+        }
+    }
+
+    /// Ratio of the smallest spacings, half level over full.
+    fn spacing_ratio(&self) -> f64 {
+        let min = |s: [f64; 3]| s.into_iter().fold(f64::INFINITY, f64::min);
+        min(self.half.volume.spacing) / min(self.full.spacing)
+    }
+
+    /// The half-level classification: the same opacity per mm (composite) or the same
+    /// window (MIP, where opacity only selects voxels).
+    pub fn preview_classification(&self, view: &ViewState) -> Classification {
+        let c = self.classification(view);
+        if view.is_mip() {
+            return c;
+        }
+        let r = self.spacing_ratio();
+        Classification {
+            opacity: preset::opacity_for_coarser_grid(&c.opacity, r, self.range),
+            gradient: None,
+            min_opacity: preset::opacity_for_step(c.min_opacity, r).min(0.999),
+        }
+    }
+
+    /// The look of `view` for a level encoded over `range`; `shadows` asks for shadows
+    /// if the view has them on (they need shading and composite mode).
+    pub fn look(
+        &self,
+        view: &ViewState,
+        encoded_range: (u16, u16),
+        shadows: bool,
+    ) -> Result<Look, Error> {
+        let colors = preset::color_points(&PRESETS[view.preset], self.range);
+        let mip = view.is_mip();
+        Ok(Look {
+            mode: if mip { Mode::Mip } else { Mode::Composite },
+            color: scene::color_table(&colors, encoded_range)?,
+            lighting: (view.shading && !mip).then(|| self.settings.lighting.clone()),
+            ert_threshold: self.settings.ert,
+            depth_cue: (view.depth_cue && !mip).then_some(state::DEPTH_CUE),
+            shadows: shadows && view.shadows && view.shading && !mip,
+        })
+    }
+
+    /// The camera of `view`.
+    pub fn camera(&self, view: &ViewState) -> Camera {
+        Camera {
+            rotate_x: view.rotate_x,
+            rotate_y: view.rotate_y,
+            width: self.settings.size[0],
+            height: self.settings.size[1],
+        }
+    }
+}
+
+/// An encoding and the milliseconds it took.
+type EncodeResult = Result<Encoding, Error>;
+
+/// The full level's one-time classification, made by the first encoding thread.
+type SharedClassifier = Arc<OnceLock<Result<Classifier, Error>>>;
+
+struct Pending {
+    handle: JoinHandle<EncodeResult>,
+}
+
+/// The render thread's state.
+struct Engine {
+    scene: Scene,
+    comp: Compositor,
+    latest: Arc<AtomicU64>,
+    full_classifier: SharedClassifier,
+    /// Full-level copies; `None` until the classifier has run (its range is needed).
+    full: Option<LevelRle>,
+    /// Milliseconds of the last full-level encoding, reported with the next full frame.
+    full_encode_ms: f64,
+    low_classifier: Classifier,
+    low: LevelRle,
+    pending: Option<Pending>,
+}
+
+enum Step {
+    Done(Outcome),
+    /// The full level is being re-encoded; ask again shortly.
+    NotReady,
+}
+
+/// Starts the render thread. Send [`Job`]s; receive [`Done`]s. Dropping the sender
+/// ends the thread.
+pub fn spawn(
+    scene: Scene,
+    latest: Arc<AtomicU64>,
+) -> (Sender<Job>, Receiver<Done>, JoinHandle<()>) {
+    let (job_tx, job_rx) = mpsc::channel::<Job>();
+    let (done_tx, done_rx) = mpsc::channel::<Done>();
+    let handle = std::thread::spawn(move || {
+        let grid = shearwarp_core::classify::Grid::new(scene.full.dims, scene.full.spacing);
+        let low = Classifier::new(Arc::new(scene.half.volume.clone()));
+        let (comp, low_classifier) = match (grid, low) {
+            (Ok(g), Ok(low)) => (Compositor::new(&g, scene.settings.threads), low),
+            (Err(e), _) | (_, Err(e)) => {
+                if let Ok(job) = job_rx.recv() {
+                    let _ = done_tx.send(Done {
+                        job,
+                        outcome: Outcome::Failed(e.to_string()),
+                    });
+                }
+                return;
+            }
+        };
+        let low = LevelRle::new(low_classifier.grid(), low_classifier.range());
+        let mut engine = Engine {
+            scene,
+            comp,
+            latest,
+            full_classifier: Arc::new(OnceLock::new()),
+            full: None,
+            full_encode_ms: 0.0,
+            low_classifier,
+            low,
+            pending: None,
+        };
+        engine.run(&job_rx, &done_tx);
+    });
+    (job_tx, done_rx, handle)
+}
+
+impl Engine {
+    fn run(&mut self, rx: &Receiver<Job>, tx: &Sender<Done>) {
+        let mut current: Option<Job> = None;
+        loop {
+            if current.is_none() {
+                match rx.recv() {
+                    Ok(j) => current = Some(j),
+                    Err(_) => return,
+                }
+            }
+            // The newest request wins.
+            loop {
+                match rx.try_recv() {
+                    Ok(j) => current = Some(j),
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => return,
+                }
+            }
+            let Some(job) = current.take() else { continue };
+            match self.step(&job) {
+                Step::Done(outcome) => {
+                    if tx.send(Done { job, outcome }).is_err() {
+                        return;
+                    }
+                }
+                Step::NotReady => match rx.recv_timeout(Duration::from_millis(4)) {
+                    Ok(j) => current = Some(j),
+                    Err(RecvTimeoutError::Timeout) => current = Some(job),
+                    Err(RecvTimeoutError::Disconnected) => return,
+                },
+            }
+        }
+    }
+
+    fn step(&mut self, job: &Job) -> Step {
+        match job.quality {
+            Quality::Preview => Step::Done(
+                self.preview(job)
+                    .unwrap_or_else(|e| Outcome::Failed(format!("preview: {e}"))),
+            ),
+            Quality::Full => match self.full_frame(job) {
+                Ok(Some(o)) => Step::Done(o),
+                Ok(None) => Step::NotReady,
+                Err(e) if render::is_cancelled(&e) => Step::Done(Outcome::Cancelled),
+                Err(e) => Step::Done(Outcome::Failed(format!("full quality: {e}"))),
+            },
+        }
+    }
+
+    fn preview(&mut self, job: &Job) -> Result<Outcome, Error> {
+        let class = self.scene.preview_classification(&job.view);
+        let camera = self.scene.camera(&job.view);
+        let axis = Factorization::new(&self.low.grid, &camera)?.axis;
+        let encode_ms = self.low.ensure(&self.low_classifier, &class, axis)?;
+        let t = Instant::now();
+        let map = ImageMap {
+            zoom: job.view.zoom,
+            pan: job.view.pan,
+            reference_diagonal: self.full_diagonal()?,
+            offset_mm: self.scene.half.offset_mm,
+        };
+        let src = Interruptible::new(self.low.volume()?, None);
+        let (pixels, shadows, note) = draw(
+            &mut self.comp,
+            &self.scene,
+            &job.view,
+            &src,
+            self.low.range,
+            &map,
+        )?;
+        Ok(Outcome::Frame {
+            pixels,
+            render_ms: t.elapsed().as_secs_f64() * 1e3,
+            encode_ms,
+            shadows,
+            note,
+        })
+    }
+
+    fn full_diagonal(&self) -> Result<f64, Error> {
+        let g = shearwarp_core::classify::Grid::new(self.scene.full.dims, self.scene.full.spacing)?;
+        Ok(g.diagonal())
+    }
+
+    /// `Ok(None)` while the full level is being (re-)encoded. Only the copy of the
+    /// view's principal axis has to be current; it is built on its own thread so that
+    /// previews go on meanwhile.
+    fn full_frame(&mut self, job: &Job) -> Result<Option<Outcome>, Error> {
+        if self.latest.load(Ordering::Relaxed) != job.generation {
+            return Err(Error::Source {
+                reason: render::CANCELLED,
+            });
+        }
+        let class = self.scene.classification(&job.view);
+        let camera = self.scene.camera(&job.view);
+        let grid =
+            shearwarp_core::classify::Grid::new(self.scene.full.dims, self.scene.full.spacing)?;
+        let axis = Factorization::new(&grid, &camera)?.axis;
+        let missing = |full: &Option<LevelRle>| match full {
+            Some(l) => l.missing(&class, axis),
+            None => Axis::ALL.to_vec(),
+        };
+        let mut waited_ms = 0.0;
+        if !missing(&self.full).is_empty() {
+            if let Some(p) = self.pending.take() {
+                if !p.handle.is_finished() {
+                    self.pending = Some(p);
+                    return Ok(None);
+                }
+                let enc = p.handle.join().map_err(|_| Error::Source {
+                    reason: "the encoding thread panicked",
+                })??;
+                self.full_encode_ms = enc.ms;
+                if self.full.is_none() {
+                    let c = self.full_classifier.get().and_then(|r| r.as_ref().ok());
+                    let range = c.map(|c| c.range()).ok_or(Error::Source {
+                        reason: "the full-level classifier is missing",
+                    })?;
+                    self.full = Some(LevelRle::new(grid, range));
+                }
+                if let Some(l) = self.full.as_mut() {
+                    l.install(enc);
+                }
+            }
+            let todo = missing(&self.full);
+            if !todo.is_empty() {
+                let raw = Arc::clone(&self.scene.full);
+                let cell = Arc::clone(&self.full_classifier);
+                let dense = self.full.as_ref().and_then(|l| l.dense_for(&class));
+                let c = class.clone();
+                self.pending = Some(Pending {
+                    handle: std::thread::spawn(move || {
+                        let t = Instant::now();
+                        let classifier = cell
+                            .get_or_init(|| Classifier::new(raw))
+                            .as_ref()
+                            .map_err(|e| *e)?;
+                        let mut enc = classifier.encode_axes(&c, dense, &todo)?;
+                        enc.ms = t.elapsed().as_secs_f64() * 1e3;
+                        Ok(enc)
+                    }),
+                });
+                return Ok(None);
+            }
+            waited_ms = self.full_encode_ms;
+        }
+        let Some(full) = &self.full else {
+            unreachable!("encoded above")
+        };
+        let t = Instant::now();
+        let map = ImageMap {
+            zoom: job.view.zoom,
+            pan: job.view.pan,
+            ..ImageMap::identity(&full.grid)
+        };
+        let src = Interruptible::new(full.volume()?, Some((&*self.latest, job.generation)));
+        let (pixels, shadows, note) = draw(
+            &mut self.comp,
+            &self.scene,
+            &job.view,
+            &src,
+            full.range,
+            &map,
+        )?;
+        Ok(Some(Outcome::Frame {
+            pixels,
+            render_ms: t.elapsed().as_secs_f64() * 1e3,
+            encode_ms: waited_ms,
+            shadows,
+            note,
+        }))
+    }
+}
+
+/// Pixels, whether shadows were rendered, and why not if they were asked for.
+type Drawn = (Vec<[u8; 4]>, bool, Option<String>);
+
+/// Renders one level; if the core declines shadows for this view (the light must lie
+/// in the view's principal-axis cone), renders without them and says why.
+fn draw<S: shearwarp_core::source::SliceSource + Clone + Send>(
+    comp: &mut Compositor,
+    scene: &Scene,
+    view: &ViewState,
+    src: &S,
+    range: (u16, u16),
+    map: &ImageMap,
+) -> Result<Drawn, Error> {
+    let camera = scene.camera(view);
+    let look = scene.look(view, range, true)?;
+    match comp.render(src, &camera, &look, map) {
+        Ok(px) => Ok((px, look.shadows, None)),
+        Err(Error::BadParameter { reason }) if look.shadows && reason.starts_with("shadows") => {
+            let plain = scene.look(view, range, false)?;
+            let px = comp.render(src, &camera, &plain, map)?;
+            Ok((
+                px,
+                false,
+                Some(format!("no shadows for this view: {reason}")),
+            ))
+        }
+        Err(e) => Err(e),
+    }
+}

@@ -1,0 +1,563 @@
+//! Rendering for the viewer: threaded band compositing with the core's own pieces, an
+//! interruptible slice source, and zoom/pan folded into the final warp.
+//!
+//! **Zoom and pan.** The core's camera always frames the whole volume (the shorter
+//! image side spans its diagonal). The viewer keeps that camera at the window's size and
+//! changes only the last step: the 2D warp maps each *window* pixel through
+//! `window → virtual image → intermediate image`, where the virtual image is the one the
+//! core would produce and `virtual = C + (window − C − pan) / zoom` (`C` the window
+//! centre). That is exactly rendering a `zoom`× larger virtual image and cropping the
+//! window out of it at offset `pan`, but the warp touches only the window's pixels, so
+//! zooming in costs nothing extra; compositing does not depend on the image size at all.
+//! At zoom 1 and no pan the map is the core's own, bit for bit, so the frame equals the
+//! file frontend's.
+//!
+//! The same composition places the half-resolution level: its camera frames its own
+//! (slightly different) diagonal and centre, and the map rescales and shifts it so
+//! that every object point lands on the same window pixel as at full resolution.
+
+use shearwarp_core::classify::Grid;
+use shearwarp_core::composite::{self, Intermediate, Rgba};
+use shearwarp_core::render::{self, Frame, Settings};
+use shearwarp_core::rle::{Axis, RleSlice};
+use shearwarp_core::shade::ShadeTable;
+use shearwarp_core::shadow;
+use shearwarp_core::source::SliceSource;
+use shearwarp_core::view::{self, Camera, Factorization};
+use shearwarp_core::warp::{self, PixelSink};
+use shearwarp_core::Error;
+use shearwarp_file::scene::Look;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
+/// The reason an [`Interruptible`] source gives when it stops a frame.
+pub const CANCELLED: &str = "cancelled";
+
+/// True if `e` is the error of an interrupted frame.
+pub fn is_cancelled(e: &Error) -> bool {
+    matches!(e, Error::Source { reason } if *reason == CANCELLED)
+}
+
+/// A slice source that stops the frame at the next slice once `latest` no longer holds
+/// `generation` (the viewer bumps `latest` on every input).
+#[derive(Clone, Copy, Debug)]
+pub struct Interruptible<'a, S> {
+    inner: S,
+    stop: Option<(&'a AtomicU64, u64)>,
+}
+
+impl<'a, S> Interruptible<'a, S> {
+    /// Wraps `inner`; with `stop = Some((latest, generation))` every slice first checks
+    /// that `latest` still equals `generation`.
+    pub fn new(inner: S, stop: Option<(&'a AtomicU64, u64)>) -> Self {
+        Interruptible { inner, stop }
+    }
+}
+
+impl<S: SliceSource> SliceSource for Interruptible<'_, S> {
+    fn grid(&self) -> Grid {
+        self.inner.grid()
+    }
+
+    fn with_slice<R>(
+        &mut self,
+        axis: Axis,
+        k: usize,
+        f: impl FnOnce(&RleSlice<'_>) -> R,
+    ) -> Result<R, Error> {
+        if let Some((latest, generation)) = self.stop {
+            if latest.load(Ordering::Relaxed) != generation {
+                return Err(Error::Source { reason: CANCELLED });
+            }
+        }
+        self.inner.with_slice(axis, k, f)
+    }
+}
+
+/// Where the rendered level goes in the window.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageMap {
+    /// Magnification relative to the core's framing (1 = whole volume fits).
+    pub zoom: f64,
+    /// Shift of the image in window pixels (right, down).
+    pub pan: [f64; 2],
+    /// Diagonal (mm) of the full-resolution grid: the framing every level is matched
+    /// to.
+    pub reference_diagonal: f64,
+    /// Offset (mm) from the full-resolution grid's centred coordinates to this level's
+    /// (see [`crate::downsample::Half::offset_mm`]); zero for the full level.
+    pub offset_mm: [f64; 3],
+}
+
+impl ImageMap {
+    /// The identity for the full level: the core's own framing.
+    pub fn identity(grid: &Grid) -> Self {
+        ImageMap {
+            zoom: 1.0,
+            pan: [0.0; 2],
+            reference_diagonal: grid.diagonal(),
+            offset_mm: [0.0; 3],
+        }
+    }
+
+    /// Affine map `p_level = a·w + b` from window pixel coordinates to the coordinates
+    /// of the image the core's factorization of `grid` under `camera` produces.
+    pub fn window_to_level(&self, grid: &Grid, camera: &Camera) -> (f64, [f64; 2]) {
+        let side = camera.width.min(camera.height) as f64;
+        let k_ref = side / self.reference_diagonal;
+        let k_level = side / grid.diagonal();
+        let a = k_level / (self.zoom * k_ref);
+        let c = [camera.width as f64 * 0.5, camera.height as f64 * 0.5];
+        let r = view::rotation(camera.rotate_x, camera.rotate_y);
+        let d = self.offset_mm;
+        let rd = [
+            r[0][0] * d[0] + r[0][1] * d[1] + r[0][2] * d[2],
+            r[1][0] * d[0] + r[1][1] * d[1] + r[1][2] * d[2],
+        ];
+        let b = [
+            c[0] - a * (c[0] + self.pan[0]) + k_level * rd[0],
+            c[1] - a * (c[1] + self.pan[1]) - k_level * rd[1],
+        ];
+        (a, b)
+    }
+
+    /// `view` with its image-to-intermediate map composed with [`Self::window_to_level`].
+    pub fn apply(&self, grid: &Grid, camera: &Camera, view: &Factorization) -> Factorization {
+        let (a, b) = self.window_to_level(grid, camera);
+        let mut out = *view;
+        for (o, m) in out
+            .image_to_intermediate
+            .iter_mut()
+            .zip(view.image_to_intermediate)
+        {
+            *o = [m[0] * a, m[1] * a, m[0] * b[0] + m[1] * b[1] + m[2]];
+        }
+        out
+    }
+}
+
+/// One unit of threaded work: band index, its pixels and its links.
+type BandJob<'a> = (usize, &'a mut [Rgba], &'a mut [u16]);
+
+/// Reusable buffers for rendering any level of one volume with `threads` threads.
+///
+/// The intermediate image is cut into bands of [`Compositor::BAND_ROWS`] scanlines that
+/// threads take from a shared queue; each composites every slice into its band with
+/// the core's `composite_band`, as the file frontend's renderer does, so the result is
+/// the same bit for bit whatever the thread count. With shadows the core sweeps its
+/// shadow buffer along with the slices over the whole image, so such frames composite
+/// on one thread (as in the file frontend).
+pub struct Compositor {
+    pixels: Vec<Rgba>,
+    links: Vec<u16>,
+    rows: Vec<Vec<Rgba>>,
+    shade: Box<ShadeTable>,
+    shadow_alpha: Vec<u16>,
+    shadow_rows: Vec<u16>,
+    shade0: Box<ShadeTable>,
+}
+
+impl Compositor {
+    /// Scanlines per work unit.
+    pub const BAND_ROWS: usize = 16;
+
+    /// Allocates for any view of `grid` (and of any smaller grid), `threads` ≥ 1.
+    pub fn new(grid: &Grid, threads: usize) -> Self {
+        let pix = view::max_intermediate_pixels(grid.dims);
+        let m = grid.dims.iter().copied().max().unwrap_or(1);
+        Compositor {
+            pixels: vec![[0; 4]; pix],
+            links: vec![0; pix],
+            rows: (0..threads.max(1))
+                .map(|_| vec![[0; 4]; composite::row_buffer_len(m)])
+                .collect(),
+            shade: Box::new(ShadeTable::UNSHADED),
+            shadow_alpha: Vec::new(),
+            shadow_rows: vec![0; shadow::row_buffer_len(m)],
+            shade0: Box::new(ShadeTable::UNSHADED),
+        }
+    }
+
+    /// Compositing threads.
+    pub fn threads(&self) -> usize {
+        self.rows.len()
+    }
+
+    /// Renders `source` under `camera` and `look`, placed in the window by `map`;
+    /// returns `camera.width × camera.height` RGBA8 pixels (premultiplied over black).
+    pub fn render<S: SliceSource + Clone + Send>(
+        &mut self,
+        source: &S,
+        camera: &Camera,
+        look: &Look,
+        map: &ImageMap,
+    ) -> Result<Vec<[u8; 4]>, Error> {
+        let grid = source.grid();
+        let settings = Settings {
+            mode: look.mode,
+            color: &look.color,
+            lighting: look.lighting.as_ref(),
+            ert_threshold: look.ert_threshold,
+            depth_cue: look.depth_cue,
+            shadows: look.shadows,
+        };
+        let frame = Frame::new(
+            &grid,
+            camera,
+            &settings,
+            &mut self.shade,
+            Some(&mut self.shade0),
+        )?;
+        let [iw, ih] = frame.view.intermediate;
+        let n = iw * ih;
+        if self.pixels.len() < n {
+            self.pixels.resize(n, [0; 4]);
+            self.links.resize(n, 0);
+        }
+        let need_row = composite::row_buffer_len(frame.view.dims[0]);
+        for r in &mut self.rows {
+            if r.len() < need_row {
+                r.resize(need_row, [0; 4]);
+            }
+        }
+        if let Some(sf) = &frame.shadow {
+            // The shadow buffer is swept with the slices: one band, this thread.
+            let need = sf.size[0] * sf.size[1];
+            if self.shadow_alpha.len() < need {
+                self.shadow_alpha.resize(need, 0);
+            }
+            let tables = frame.tables(&look.color, &self.shade, Some(&self.shade0));
+            let mut img = Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
+            render::composite_band(
+                &mut source.clone(),
+                &frame,
+                &tables,
+                &mut img,
+                &mut self.rows[0],
+                Some((&mut self.shadow_alpha, &mut self.shadow_rows)),
+            )?;
+            return self.warp(&grid, camera, &frame, map);
+        }
+        let tables = frame.tables(&look.color, &self.shade, None);
+        let band = Self::BAND_ROWS * iw;
+        let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(
+            self.pixels[..n]
+                .chunks_mut(band)
+                .zip(self.links[..n].chunks_mut(band))
+                .enumerate()
+                .map(|(i, (p, l))| (i, p, l))
+                .rev()
+                .collect(),
+        );
+        let poisoned = || Error::Source {
+            reason: "a compositing thread panicked",
+        };
+        std::thread::scope(|scope| -> Result<(), Error> {
+            let handles: Vec<_> = self
+                .rows
+                .iter_mut()
+                .map(|rows| {
+                    let (queue, frame, tables) = (&queue, &frame, &tables);
+                    let mut src = source.clone();
+                    scope.spawn(move || -> Result<(), Error> {
+                        loop {
+                            let job = queue.lock().map_err(|_| poisoned())?.pop();
+                            let Some((i, p, l)) = job else { return Ok(()) };
+                            let row0 = i * Self::BAND_ROWS;
+                            let here = Self::BAND_ROWS.min(ih - row0);
+                            let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
+                            render::composite_band(&mut src, frame, tables, &mut img, rows, None)?;
+                        }
+                    })
+                })
+                .collect();
+            let mut first_err = None;
+            for h in handles {
+                let r = h.join().map_err(|_| poisoned()).and_then(|r| r);
+                if let Err(e) = r {
+                    first_err.get_or_insert(e);
+                }
+            }
+            first_err.map_or(Ok(()), Err)
+        })?;
+        self.warp(&grid, camera, &frame, map)
+    }
+
+    /// Warps the composited intermediate image of `frame` into a window-sized frame.
+    fn warp(
+        &mut self,
+        grid: &Grid,
+        camera: &Camera,
+        frame: &Frame,
+        map: &ImageMap,
+    ) -> Result<Vec<[u8; 4]>, Error> {
+        let [iw, ih] = frame.view.intermediate;
+        let pixels = &self.pixels[..iw * ih];
+        let view = map.apply(grid, camera, &frame.view);
+        let (w, h) = (camera.width, camera.height);
+        let mut px = vec![[0u8; 4]; w * h];
+        // Output rows are split between the threads; every row is computed on its own,
+        // so the result does not depend on the split.
+        let strip = h.div_ceil(self.rows.len()).max(1);
+        std::thread::scope(|scope| -> Result<(), Error> {
+            let handles: Vec<_> = px
+                .chunks_mut(strip * w)
+                .enumerate()
+                .map(|(i, chunk)| {
+                    let view = &view;
+                    scope.spawn(move || -> Result<(), Error> {
+                        let mut row = vec![[0u8; 4]; w];
+                        let first = i * strip;
+                        let mut sink = Strip {
+                            first,
+                            width: w,
+                            pixels: chunk,
+                        };
+                        warp::warp_rows(
+                            pixels,
+                            view,
+                            first..(first + strip).min(h),
+                            &mut row,
+                            &mut sink,
+                        )
+                    })
+                })
+                .collect();
+            for handle in handles {
+                handle.join().map_err(|_| Error::Source {
+                    reason: "a warp thread panicked",
+                })??;
+            }
+            Ok(())
+        })?;
+        Ok(px)
+    }
+}
+
+/// Receives the rows `first..` of the final image into a slice of the frame.
+struct Strip<'a> {
+    first: usize,
+    width: usize,
+    pixels: &'a mut [[u8; 4]],
+}
+
+impl PixelSink for Strip<'_> {
+    fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error> {
+        let got = self.pixels.len();
+        let start =
+            y.checked_sub(self.first)
+                .map(|r| r * self.width)
+                .ok_or(Error::BadParameter {
+                    reason: "warp row outside its strip",
+                })?;
+        let dst = self
+            .pixels
+            .get_mut(start..start + row.len())
+            .ok_or(Error::BufferTooSmall {
+                what: "frame strip",
+                needed: start + row.len(),
+                got,
+            })?;
+        dst.copy_from_slice(row);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::downsample;
+    use shearwarp_core::composite::Mode;
+    use shearwarp_core::shade::Lighting;
+    use shearwarp_file::scene::{self, Classification, Renderer};
+    use shearwarp_file::volume::{RawVolume, Voxels};
+
+    /// An off-centre ball in an odd-sized, anisotropic volume.
+    fn ball() -> RawVolume {
+        let dims = [41usize, 36, 29];
+        let c = [26.0, 15.0, 13.0];
+        let mut v = Vec::new();
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    let d = ((x as f64 - c[0]).powi(2)
+                        + (y as f64 - c[1]).powi(2)
+                        + (1.5 * (z as f64 - c[2])).powi(2))
+                    .sqrt();
+                    v.push((230.0 - 25.0 * d).clamp(0.0, 255.0) as u8);
+                }
+            }
+        }
+        RawVolume {
+            name: "ball".into(),
+            dims,
+            spacing: [1.0, 1.0, 1.5],
+            voxels: Voxels::U8(v),
+        }
+    }
+
+    fn look(mode: Mode, shading: bool) -> Look {
+        Look {
+            mode,
+            color: scene::color_table(
+                &[(0.0, [255, 200, 150]), (255.0, [255, 255, 255])],
+                (0, 255),
+            )
+            .unwrap(),
+            lighting: shading.then(Lighting::default),
+            ert_threshold: 0.95,
+            depth_cue: None,
+            shadows: false,
+        }
+    }
+
+    fn class() -> Classification {
+        Classification {
+            opacity: vec![(0.0, 0.0), (60.0, 0.0), (120.0, 0.6), (255.0, 0.9)],
+            gradient: None,
+            min_opacity: 0.02,
+        }
+    }
+
+    fn cam(rx: f64, ry: f64) -> Camera {
+        Camera {
+            rotate_x: rx,
+            rotate_y: ry,
+            width: 96,
+            height: 80,
+        }
+    }
+
+    /// Intensity-weighted centroid of the red channel.
+    fn centroid(px: &[[u8; 4]], w: usize) -> [f64; 2] {
+        let (mut sx, mut sy, mut s) = (0.0, 0.0, 0.0);
+        for (i, p) in px.iter().enumerate() {
+            let a = p[0] as f64;
+            sx += a * (i % w) as f64;
+            sy += a * (i / w) as f64;
+            s += a;
+        }
+        [sx / s, sy / s]
+    }
+
+    #[test]
+    fn identity_map_equals_the_file_frontend_bit_for_bit() {
+        let raw = ball();
+        let enc = scene::encode(&raw, &class()).unwrap();
+        let vol = enc.volume().unwrap();
+        for (threads, c, l) in [
+            (1, cam(-70.0, -35.0), look(Mode::Composite, true)),
+            (2, cam(20.0, 100.0), look(Mode::Composite, false)),
+            (3, cam(95.0, 10.0), look(Mode::Mip, false)),
+        ] {
+            let mut comp = Compositor::new(&enc.grid, threads);
+            let mine = comp
+                .render(&vol, &c, &l, &ImageMap::identity(&enc.grid))
+                .unwrap();
+            let mut r = Renderer::with_threads(&enc.grid, c.width, threads);
+            let theirs = r.render(&mut vol.clone(), &c, &l).unwrap();
+            assert!(mine == theirs, "threads {threads}");
+        }
+    }
+
+    #[test]
+    fn shadows_and_depth_cue_equal_the_file_frontend() {
+        let raw = ball();
+        let enc = scene::encode(&raw, &class()).unwrap();
+        let vol = enc.volume().unwrap();
+        let mut l = look(Mode::Composite, true);
+        // A light near the viewing direction: the core's shadows need it inside the
+        // view's principal-axis cone.
+        if let Some(light) = l.lighting.as_mut().and_then(|x| x.lights.first_mut()) {
+            light.direction = [0.2, 0.3, 1.0];
+        }
+        l.depth_cue = Some(shearwarp_core::depth::DepthCue {
+            front: 1.0,
+            density: 1.5,
+        });
+        for shadows in [false, true] {
+            l.shadows = shadows;
+            for c in [cam(0.0, 0.0), cam(10.0, -20.0)] {
+                let mut comp = Compositor::new(&enc.grid, 2);
+                let mine = comp
+                    .render(&vol, &c, &l, &ImageMap::identity(&enc.grid))
+                    .unwrap();
+                let mut r = Renderer::with_threads(&enc.grid, c.width, 2);
+                let theirs = r.render(&mut vol.clone(), &c, &l).unwrap();
+                assert!(mine == theirs, "shadows {shadows} {c:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn zoom_and_pan_scale_about_the_centre_and_shift() {
+        let raw = ball();
+        let enc = scene::encode(&raw, &class()).unwrap();
+        let vol = enc.volume().unwrap();
+        let c = cam(-30.0, 40.0);
+        let l = look(Mode::Composite, false);
+        let mut comp = Compositor::new(&enc.grid, 2);
+        let id = ImageMap::identity(&enc.grid);
+        let base = centroid(&comp.render(&vol, &c, &l, &id).unwrap(), c.width);
+        let zoomed = ImageMap {
+            zoom: 1.5,
+            pan: [4.0, -3.0],
+            ..id
+        };
+        let z = centroid(&comp.render(&vol, &c, &l, &zoomed).unwrap(), c.width);
+        let centre = [48.0, 40.0];
+        for a in 0..2 {
+            let want = centre[a] + 1.5 * (base[a] - centre[a]) + zoomed.pan[a];
+            assert!((z[a] - want).abs() < 0.35, "axis {a}: {z:?} vs {want}");
+        }
+    }
+
+    #[test]
+    fn half_level_lands_where_the_full_level_does() {
+        let raw = ball();
+        let h = downsample::half(&raw);
+        let full = scene::encode(&raw, &class()).unwrap();
+        let low = scene::encode(&h.volume, &class()).unwrap();
+        let l = look(Mode::Mip, false);
+        let mut comp = Compositor::new(&full.grid, 2);
+        for c in [cam(0.0, 0.0), cam(-70.0, -35.0), cam(33.0, 120.0)] {
+            for (zoom, pan) in [(1.0, [0.0, 0.0]), (2.0, [-6.0, 5.0])] {
+                let map = ImageMap {
+                    zoom,
+                    pan,
+                    ..ImageMap::identity(&full.grid)
+                };
+                let a = comp.render(&full.volume().unwrap(), &c, &l, &map).unwrap();
+                let low_map = ImageMap {
+                    offset_mm: h.offset_mm,
+                    ..map
+                };
+                let b = comp
+                    .render(&low.volume().unwrap(), &c, &l, &low_map)
+                    .unwrap();
+                let (ca, cb) = (centroid(&a, c.width), centroid(&b, c.width));
+                for k in 0..2 {
+                    assert!((ca[k] - cb[k]).abs() < 0.3 * zoom, "{c:?} {ca:?} {cb:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn interruptible_source_stops_when_the_generation_moves_on() {
+        let raw = ball();
+        let enc = scene::encode(&raw, &class()).unwrap();
+        let latest = AtomicU64::new(7);
+        let c = cam(10.0, 10.0);
+        let l = look(Mode::Composite, false);
+        let mut comp = Compositor::new(&enc.grid, 2);
+        let id = ImageMap::identity(&enc.grid);
+        let live = Interruptible::new(enc.volume().unwrap(), Some((&latest, 7)));
+        assert!(comp.render(&live, &c, &l, &id).is_ok());
+        latest.store(8, Ordering::Relaxed);
+        let e = comp.render(&live, &c, &l, &id).unwrap_err();
+        assert!(is_cancelled(&e), "{e:?}");
+        let unchecked = Interruptible::new(enc.volume().unwrap(), None);
+        assert!(comp.render(&unchecked, &c, &l, &id).is_ok());
+    }
+}

@@ -1,0 +1,403 @@
+//! What the user controls, and how inputs change it. The window and the script player
+//! both turn their events into [`Input`]s, so a replayed script drives exactly the code
+//! a person does.
+
+use crate::preset::{WindowLevel, PRESETS};
+use shearwarp_core::depth::DepthCue;
+
+/// The fog of the depth-cue toggle: full brightness at the nearest corner of the volume,
+/// `e^(−1.5)` ≈ 22 % at the farthest.
+pub const DEPTH_CUE: DepthCue = DepthCue {
+    front: 1.0,
+    density: 1.5,
+};
+
+/// Degrees of rotation per pixel of left-drag.
+pub const DEG_PER_PIXEL: f64 = 0.5;
+/// Degrees per arrow-key press.
+pub const DEG_PER_KEY: f64 = 5.0;
+/// Zoom factor per wheel notch.
+pub const ZOOM_PER_NOTCH: f64 = 1.1;
+/// Zoom factor per `+`/`-` key press.
+pub const ZOOM_PER_KEY: f64 = 1.25;
+/// Zoom limits.
+pub const ZOOM_RANGE: (f64, f64) = (0.2, 20.0);
+/// Window/level drag: level change per pixel of upward drag (normalised units).
+pub const LEVEL_PER_PIXEL: f64 = 0.002;
+/// Window/level drag: the window is multiplied by `exp(dx · WINDOW_PER_PIXEL)`.
+pub const WINDOW_PER_PIXEL: f64 = 0.005;
+/// Level change per key press (normalised units).
+pub const LEVEL_PER_KEY: f64 = 0.01;
+/// Window factor per key press.
+pub const WINDOW_PER_KEY: f64 = 1.15;
+
+/// Everything that decides a frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewState {
+    /// Rotation about X, degrees (applied after Y).
+    pub rotate_x: f64,
+    /// Rotation about Y, degrees.
+    pub rotate_y: f64,
+    /// Zoom (1 = whole volume fits).
+    pub zoom: f64,
+    /// Pan in window pixels.
+    pub pan: [f64; 2],
+    /// Index into [`PRESETS`].
+    pub preset: usize,
+    /// Window/level of the preset's opacity ramp.
+    pub wl: WindowLevel,
+    /// Phong/Blinn shading.
+    pub shading: bool,
+    /// Maximum intensity projection forced on (presets can also be MIP).
+    pub mip: bool,
+    /// Depth cueing ([`DEPTH_CUE`]; composite mode only).
+    pub depth_cue: bool,
+    /// Shadows toward the first light (composite mode with shading only).
+    pub shadows: bool,
+}
+
+impl ViewState {
+    /// The start view.
+    pub fn new(rotate_x: f64, rotate_y: f64, preset: usize, shading: bool) -> Self {
+        let preset = preset % PRESETS.len();
+        ViewState {
+            rotate_x,
+            rotate_y,
+            zoom: 1.0,
+            pan: [0.0; 2],
+            preset,
+            wl: PRESETS[preset].wl,
+            shading,
+            mip: false,
+            depth_cue: false,
+            shadows: false,
+        }
+    }
+
+    /// True if the frame is a maximum intensity projection.
+    pub fn is_mip(&self) -> bool {
+        self.mip || PRESETS[self.preset].mip
+    }
+
+    /// True if only the placement differs: the classification (and so the encoded
+    /// volumes) of `self` and `other` are the same.
+    pub fn same_classification(&self, other: &ViewState) -> bool {
+        self.preset == other.preset && self.wl == other.wl
+    }
+}
+
+/// Mouse buttons that drag.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Button {
+    /// Rotate.
+    Left,
+    /// Window/level.
+    Right,
+    /// Pan.
+    Middle,
+}
+
+/// Keyboard commands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewKey {
+    RotateLeft,
+    RotateRight,
+    RotateUp,
+    RotateDown,
+    ZoomIn,
+    ZoomOut,
+    ResetView,
+    NextPreset,
+    PrevPreset,
+    Preset(usize),
+    WindowNarrower,
+    WindowWider,
+    LevelDown,
+    LevelUp,
+    ResetWindowLevel,
+    Shading,
+    Mip,
+    Shadows,
+    DepthCue,
+    Screenshot,
+    Print,
+    Help,
+    Quit,
+}
+
+/// Key names for scripts, with what they do (the key list printed at start).
+pub const KEYS: &[(&str, &str, ViewKey)] = &[
+    (
+        "left",
+        "Left arrow: rotate 5° (about Y)",
+        ViewKey::RotateLeft,
+    ),
+    ("right", "Right arrow: rotate 5°", ViewKey::RotateRight),
+    ("up", "Up arrow: tilt 5° (about X)", ViewKey::RotateUp),
+    ("down", "Down arrow: tilt 5°", ViewKey::RotateDown),
+    ("+", "+ / = / PageUp: zoom in", ViewKey::ZoomIn),
+    ("-", "- / PageDown: zoom out", ViewKey::ZoomOut),
+    ("r", "R: reset rotation, zoom and pan", ViewKey::ResetView),
+    (
+        "tab",
+        "Tab: next preset (Shift+Tab: previous)",
+        ViewKey::NextPreset,
+    ),
+    ("shift+tab", "", ViewKey::PrevPreset),
+    (
+        "1",
+        "1..5: preset MR default, MR brain, CT bone, CT skin, MIP",
+        ViewKey::Preset(0),
+    ),
+    ("2", "", ViewKey::Preset(1)),
+    ("3", "", ViewKey::Preset(2)),
+    ("4", "", ViewKey::Preset(3)),
+    ("5", "", ViewKey::Preset(4)),
+    (
+        "[",
+        "[ / ]: narrower / wider opacity window",
+        ViewKey::WindowNarrower,
+    ),
+    ("]", "", ViewKey::WindowWider),
+    (",", ", / .: lower / raise the level", ViewKey::LevelDown),
+    (".", "", ViewKey::LevelUp),
+    (
+        "0",
+        "0: the preset's window/level",
+        ViewKey::ResetWindowLevel,
+    ),
+    ("l", "L: shading on/off", ViewKey::Shading),
+    ("m", "M: maximum intensity projection on/off", ViewKey::Mip),
+    (
+        "w",
+        "W: shadows toward the light on/off (needs shading)",
+        ViewKey::Shadows,
+    ),
+    ("d", "D: depth cueing (fog) on/off", ViewKey::DepthCue),
+    ("s", "S: screenshot to PNG", ViewKey::Screenshot),
+    (
+        "p",
+        "P: print the view and the equivalent `shearwarp render` command",
+        ViewKey::Print,
+    ),
+    ("h", "H / F1: this list", ViewKey::Help),
+    ("q", "Q / Esc: quit", ViewKey::Quit),
+];
+
+impl ViewKey {
+    /// The key of a script name (see [`KEYS`]), ASCII case-insensitive.
+    pub fn from_name(name: &str) -> Option<ViewKey> {
+        let lower = name.to_ascii_lowercase();
+        let alias = match lower.as_str() {
+            "esc" | "escape" => "q",
+            "=" | "plus" | "pageup" => "+",
+            "minus" | "pagedown" => "-",
+            "f1" => "h",
+            other => other,
+        };
+        KEYS.iter().find(|k| k.0 == alias).map(|k| k.2)
+    }
+}
+
+/// One input event.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Input {
+    /// Mouse moved by `(dx, dy)` pixels with `button` held.
+    Drag { button: Button, dx: f64, dy: f64 },
+    /// Wheel turned `notches` (positive zooms in) with the pointer at `at`.
+    Wheel { notches: f64, at: Option<[f64; 2]> },
+    /// A key press.
+    Key(ViewKey),
+}
+
+/// What an input asks of the application besides a new view.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Request {
+    /// Nothing besides (the view may have changed).
+    None,
+    Screenshot,
+    Print,
+    Help,
+    Quit,
+}
+
+/// Applies `input` to `view` for a window of `size` pixels, starting from `home` on
+/// reset.
+pub fn apply(view: &mut ViewState, home: &ViewState, input: Input, size: [usize; 2]) -> Request {
+    let centre = [size[0] as f64 * 0.5, size[1] as f64 * 0.5];
+    match input {
+        Input::Drag { button, dx, dy } => match button {
+            Button::Left => {
+                view.rotate_y = wrap_deg(view.rotate_y + DEG_PER_PIXEL * dx);
+                view.rotate_x = wrap_deg(view.rotate_x + DEG_PER_PIXEL * dy);
+            }
+            Button::Middle => {
+                view.pan[0] += dx;
+                view.pan[1] += dy;
+            }
+            Button::Right => {
+                view.wl = view
+                    .wl
+                    .adjust(-LEVEL_PER_PIXEL * dy, (WINDOW_PER_PIXEL * dx).exp());
+            }
+        },
+        Input::Wheel { notches, at } => {
+            zoom_about(view, ZOOM_PER_NOTCH.powf(notches), at, centre);
+        }
+        Input::Key(k) => match k {
+            ViewKey::RotateLeft => view.rotate_y = wrap_deg(view.rotate_y - DEG_PER_KEY),
+            ViewKey::RotateRight => view.rotate_y = wrap_deg(view.rotate_y + DEG_PER_KEY),
+            ViewKey::RotateUp => view.rotate_x = wrap_deg(view.rotate_x - DEG_PER_KEY),
+            ViewKey::RotateDown => view.rotate_x = wrap_deg(view.rotate_x + DEG_PER_KEY),
+            ViewKey::ZoomIn => zoom_about(view, ZOOM_PER_KEY, None, centre),
+            ViewKey::ZoomOut => zoom_about(view, 1.0 / ZOOM_PER_KEY, None, centre),
+            ViewKey::ResetView => {
+                view.rotate_x = home.rotate_x;
+                view.rotate_y = home.rotate_y;
+                view.zoom = home.zoom;
+                view.pan = home.pan;
+            }
+            ViewKey::NextPreset => set_preset(view, (view.preset + 1) % PRESETS.len()),
+            ViewKey::PrevPreset => {
+                set_preset(view, (view.preset + PRESETS.len() - 1) % PRESETS.len())
+            }
+            ViewKey::Preset(i) => set_preset(view, i.min(PRESETS.len() - 1)),
+            ViewKey::WindowNarrower => view.wl = view.wl.adjust(0.0, 1.0 / WINDOW_PER_KEY),
+            ViewKey::WindowWider => view.wl = view.wl.adjust(0.0, WINDOW_PER_KEY),
+            ViewKey::LevelDown => view.wl = view.wl.adjust(-LEVEL_PER_KEY, 1.0),
+            ViewKey::LevelUp => view.wl = view.wl.adjust(LEVEL_PER_KEY, 1.0),
+            ViewKey::ResetWindowLevel => view.wl = PRESETS[view.preset].wl,
+            ViewKey::Shading => view.shading = !view.shading,
+            ViewKey::Mip => view.mip = !view.mip,
+            ViewKey::Shadows => view.shadows = !view.shadows,
+            ViewKey::DepthCue => view.depth_cue = !view.depth_cue,
+            ViewKey::Screenshot => return Request::Screenshot,
+            ViewKey::Print => return Request::Print,
+            ViewKey::Help => return Request::Help,
+            ViewKey::Quit => return Request::Quit,
+        },
+    }
+    Request::None
+}
+
+fn set_preset(view: &mut ViewState, i: usize) {
+    view.preset = i;
+    view.wl = PRESETS[i].wl;
+}
+
+/// Multiplies the zoom by `factor` (clamped) keeping the virtual-image point under
+/// window position `at` (default: the centre) fixed.
+fn zoom_about(view: &mut ViewState, factor: f64, at: Option<[f64; 2]>, centre: [f64; 2]) {
+    let new = (view.zoom * factor).clamp(ZOOM_RANGE.0, ZOOM_RANGE.1);
+    if !new.is_finite() || new == view.zoom {
+        return;
+    }
+    let at = at.unwrap_or(centre);
+    // Window w shows virtual C + (w − C − pan)/zoom; keep that fixed at w = at.
+    for a in 0..2 {
+        view.pan[a] = at[a] - centre[a] - (at[a] - centre[a] - view.pan[a]) * new / view.zoom;
+    }
+    view.zoom = new;
+}
+
+/// Angle in (−180, 180].
+pub fn wrap_deg(a: f64) -> f64 {
+    let r = a.rem_euclid(360.0);
+    if r > 180.0 {
+        r - 360.0
+    } else {
+        r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn drags_and_keys() {
+        let home = ViewState::new(-70.0, -35.0, 0, true);
+        let mut v = home;
+        let size = [400, 300];
+        apply(
+            &mut v,
+            &home,
+            Input::Drag {
+                button: Button::Left,
+                dx: 20.0,
+                dy: -10.0,
+            },
+            size,
+        );
+        assert_eq!((v.rotate_x, v.rotate_y), (-75.0, -25.0));
+        apply(&mut v, &home, Input::Key(ViewKey::NextPreset), size);
+        assert_eq!(v.preset, 1);
+        assert_eq!(v.wl, PRESETS[1].wl);
+        let before = v.wl;
+        apply(
+            &mut v,
+            &home,
+            Input::Drag {
+                button: Button::Right,
+                dx: 0.0,
+                dy: -50.0,
+            },
+            size,
+        );
+        assert!((v.wl.level - (before.level + 0.1)).abs() < 1e-12);
+        assert_eq!(v.wl.window, before.window);
+        apply(&mut v, &home, Input::Key(ViewKey::PrevPreset), size);
+        apply(&mut v, &home, Input::Key(ViewKey::PrevPreset), size);
+        assert_eq!(v.preset, PRESETS.len() - 1);
+        assert!(v.is_mip());
+        apply(&mut v, &home, Input::Key(ViewKey::DepthCue), size);
+        assert!(v.depth_cue);
+        assert_eq!(
+            apply(&mut v, &home, Input::Key(ViewKey::Shadows), size),
+            Request::None
+        );
+        assert!(v.shadows);
+        apply(&mut v, &home, Input::Key(ViewKey::ResetView), size);
+        assert_eq!((v.rotate_x, v.rotate_y, v.zoom), (-70.0, -35.0, 1.0));
+        assert_eq!(wrap_deg(190.0), -170.0);
+        assert_eq!(wrap_deg(-180.0), 180.0);
+    }
+
+    #[test]
+    fn wheel_zoom_keeps_the_point_under_the_pointer() {
+        let home = ViewState::new(0.0, 0.0, 0, false);
+        let mut v = home;
+        let size = [400, 300];
+        let at = [300.0, 100.0];
+        let virt = |v: &ViewState| {
+            [0, 1]
+                .map(|a| size[a] as f64 * 0.5 + (at[a] - size[a] as f64 * 0.5 - v.pan[a]) / v.zoom)
+        };
+        let before = virt(&v);
+        apply(
+            &mut v,
+            &home,
+            Input::Wheel {
+                notches: 3.0,
+                at: Some(at),
+            },
+            size,
+        );
+        assert!((v.zoom - 1.1f64.powi(3)).abs() < 1e-12);
+        let after = virt(&v);
+        assert!((before[0] - after[0]).abs() < 1e-9 && (before[1] - after[1]).abs() < 1e-9);
+        for _ in 0..100 {
+            apply(&mut v, &home, Input::Key(ViewKey::ZoomOut), size);
+        }
+        assert_eq!(v.zoom, ZOOM_RANGE.0);
+    }
+
+    #[test]
+    fn key_names() {
+        assert_eq!(ViewKey::from_name("Tab"), Some(ViewKey::NextPreset));
+        assert_eq!(ViewKey::from_name("ESC"), Some(ViewKey::Quit));
+        assert_eq!(ViewKey::from_name("3"), Some(ViewKey::Preset(2)));
+        assert_eq!(ViewKey::from_name("="), Some(ViewKey::ZoomIn));
+        assert_eq!(ViewKey::from_name("x"), None);
+    }
+}
