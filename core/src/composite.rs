@@ -382,6 +382,9 @@ pub fn composite_slice(
         });
     }
     need("row buffer", row_buffer_len(ni), rows.len())?;
+    if view.supersample > 1 {
+        return composite_slice_supersampled(img, slice, k, view, tables, rows, shadow);
+    }
     let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
     let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
     let mut top = Row {
@@ -442,6 +445,155 @@ pub fn composite_slice(
     top.clear();
     bot.clear();
     Ok(())
+}
+
+/// [`composite_slice`] for an intermediate image with `s = view.supersample` pixels per
+/// voxel: pixel `u` samples the slice at `u/s − T`, so weights vary from pixel to pixel
+/// (with period `s`), and each pair of voxel rows serves `s` scanlines.
+fn composite_slice_supersampled(
+    img: &mut Intermediate<'_>,
+    slice: &RleSlice<'_>,
+    k: usize,
+    view: &Factorization,
+    tables: &SliceTables<'_>,
+    rows: &mut [Rgba],
+    shadow: Option<&ShadowLookup<'_>>,
+) -> Result<(), Error> {
+    let [ni, nj, _] = view.dims;
+    let ss = view.supersample as i64;
+    let one = ONE as i64;
+    let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
+    // Slice translation T in Q15.
+    let tu = ou.n as i64 * one + ou.f as i64;
+    let tv = ov.n as i64 * one + ov.f as i64;
+    let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
+    let mut top = Row {
+        buf: r0,
+        dirty: (0, ni + 2),
+    };
+    let mut bot = Row {
+        buf: r1,
+        dirty: (0, ni + 2),
+    };
+    top.clear();
+    bot.clear();
+    let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
+    let width = img.width;
+    let empty: (&[u8], &[Voxel]) = (&[], &[]);
+    let row_of = |j: i64| {
+        if j >= 0 && (j as usize) < nj {
+            slice.scanline(j as usize)
+        } else {
+            empty
+        }
+    };
+    // Rows held in `top` / `bot` (voxel row indices), i64::MIN when none.
+    let mut held = i64::MIN;
+    for v in img.row0..img.row0 + img.rows {
+        let pv = v as i64 * one / ss - tv;
+        let jt = pv.div_euclid(one);
+        let frv = pv.rem_euclid(one) as u32;
+        if jt < -1 || jt >= nj as i64 {
+            continue;
+        }
+        if jt != held {
+            if jt == held + 1 {
+                core::mem::swap(&mut top, &mut bot);
+            } else {
+                let r = row_of(jt);
+                top.fill(r.0, r.1, tables, scale, jt, shadow);
+            }
+            let r = row_of(jt + 1);
+            bot.fill(r.0, r.1, tables, scale, jt + 1, shadow);
+            held = jt;
+        }
+        let (top_runs, bot_runs) = (row_of(jt).0, row_of(jt + 1).0);
+        let line = (v - img.row0) * width;
+        let pixels = &mut img.pixels[line..line + width];
+        let links = &mut img.links[line..line + width];
+        let spans = MergedSpans {
+            a: Spans::new(top_runs).peekable(),
+            b: Spans::new(bot_runs).peekable(),
+        };
+        for (a, b) in spans {
+            // The merged span [a, b) already includes the voxel to the right of each run
+            // (b = last + 2): pixels whose left voxel lies in [a − 1, b − 1).
+            let lo = ((a as i64 - 1) * one + tu) * ss;
+            let hi = ((b as i64 - 1) * one + tu) * ss;
+            let ua = (lo.div_euclid(one) + 1).clamp(0, width as i64) as usize;
+            let ub = (hi.div_euclid(one) + 1).clamp(0, width as i64) as usize;
+            let mut u = ua;
+            while u < ub {
+                if links[u] != 0 {
+                    u = skip_opaque(links, u);
+                    continue;
+                }
+                let pu = u as i64 * one / ss - tu;
+                let il = pu.div_euclid(one);
+                let fru = pu.rem_euclid(one) as u32;
+                if il < -1 || il >= ni as i64 {
+                    u += 1;
+                    continue;
+                }
+                let bl = (il + 1) as usize;
+                let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
+                composite_pixel(
+                    &mut pixels[u],
+                    &mut links[u],
+                    top.buf,
+                    bot.buf,
+                    bl,
+                    w,
+                    tables,
+                );
+                u += 1;
+            }
+        }
+    }
+    top.clear();
+    bot.clear();
+    Ok(())
+}
+
+/// Resamples and composites one pixel from voxel buffer index `bl` (left) and `bl + 1`.
+#[inline(always)]
+fn composite_pixel(
+    p: &mut Rgba,
+    link: &mut u16,
+    top: &[Rgba],
+    bot: &[Rgba],
+    bl: usize,
+    w: [u32; 4],
+    t: &SliceTables<'_>,
+) {
+    let (tl, tr, bl_, br) = (top[bl], top[bl + 1], bot[bl], bot[bl + 1]);
+    let mut s = [0u32; 4];
+    for c in 0..4 {
+        s[c] = (w[0] * tl[c] as u32
+            + w[1] * tr[c] as u32
+            + w[2] * bl_[c] as u32
+            + w[3] * br[c] as u32
+            + (1 << 14))
+            >> 15;
+    }
+    match t.mode {
+        Mode::Composite => {
+            if s[3] != 0 {
+                let tr = ONE - p[3] as u32;
+                for c in 0..4 {
+                    p[c] = (p[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16;
+                }
+                if p[3] as u32 >= t.ert {
+                    *link = 1;
+                }
+            }
+        }
+        Mode::Mip => {
+            if s[0] > p[0] as u32 {
+                *p = [s[0] as u16; 4];
+            }
+        }
+    }
 }
 
 /// The inner loop: pixels `ua..ub` of one scanline.

@@ -95,8 +95,11 @@ impl DepthFrame {
         let slope_s = gk - gi * si - gj * sj;
         let off_s = e - gi * ti - gj * tj;
         let [w, h] = view.intermediate;
+        // Per intermediate pixel (a supersampled image has `s` pixels per voxel).
+        let ss = view.supersample.max(1) as f64;
+        let (pgi, pgj) = (gi / ss, gj / ss);
         let (wm, hm) = ((w.max(1) - 1) as f64, (h.max(1) - 1) as f64);
-        let corners = [0.0, gi * wm, gj * hm, gi * wm + gj * hm];
+        let corners = [0.0, pgi * wm, pgj * hm, pgi * wm + pgj * hm];
         let mut pmax = f64::NEG_INFINITY;
         let mut pmin = f64::INFINITY;
         for c in corners {
@@ -114,8 +117,8 @@ impl DepthFrame {
             density: cue.density,
             slope: slope_s,
             offset: off_s + pmax,
-            gu: gi,
-            gv: gj,
+            gu: pgi,
+            gv: pgj,
             pmax,
             range,
             table,

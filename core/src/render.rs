@@ -135,7 +135,20 @@ impl Frame {
         shade: &mut ShadeTable,
         shade0: Option<&mut ShadeTable>,
     ) -> Result<Self, Error> {
-        let view = Factorization::new(grid, camera)?;
+        Self::supersampled(grid, camera, settings, shade, shade0, 1)
+    }
+
+    /// As [`Frame::new`], compositing at `s` intermediate pixels per voxel
+    /// ([`Factorization::with_supersampling`]).
+    pub fn supersampled(
+        grid: &crate::classify::Grid,
+        camera: &Camera,
+        settings: &Settings<'_>,
+        shade: &mut ShadeTable,
+        shade0: Option<&mut ShadeTable>,
+        s: usize,
+    ) -> Result<Self, Error> {
+        let view = Factorization::new(grid, camera)?.with_supersampling(s)?;
         if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
             return Err(Error::BadParameter {
                 reason: "early-ray-termination threshold must be in (0, 1]",

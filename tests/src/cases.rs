@@ -57,6 +57,8 @@ pub struct Case {
     pub two_lights: bool,
     /// Render the unclassified volume in this mode instead of the classified RLE path.
     pub post: Option<PostMode>,
+    /// Intermediate pixels per voxel.
+    pub supersample: usize,
 }
 
 /// The lighting a case uses.
@@ -114,6 +116,7 @@ macro_rules! case {
             shadows: false,
             two_lights: false,
             post: None,
+            supersample: 1,
         }
     };
 }
@@ -465,6 +468,66 @@ pub const CASES: &[Case] = &[
             25.0
         )
     },
+    Case {
+        size: 512,
+        supersample: 1,
+        ..case!(
+            "head64_512_34",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            25.0
+        )
+    },
+    Case {
+        size: 512,
+        supersample: 2,
+        ..case!(
+            "head64_512_34_ss2",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            25.0
+        )
+    },
+    Case {
+        size: 512,
+        supersample: 1,
+        ..case!(
+            "spheres_512_30_45",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            30.0,
+            45.0,
+            25.0
+        )
+    },
+    Case {
+        size: 512,
+        supersample: 2,
+        ..case!(
+            "spheres_512_30_45_ss2",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            30.0,
+            45.0,
+            25.0
+        )
+    },
 ];
 
 /// The workspace's `fixtures/` directory.
@@ -549,6 +612,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         height: case.size,
     };
     let mut r = Renderer::with_threads(&enc.grid, case.size, threads);
+    r.set_supersample(case.supersample).expect("supersample");
     let mut src = enc.volume().expect("volume");
     let frame = r.render(&mut src, &cam, &look).expect("render");
     frame.iter().map(|p| [p[0], p[1], p[2]]).collect()

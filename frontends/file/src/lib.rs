@@ -1,6 +1,9 @@
-//! File frontend for `shearwarp`: loading volumes with JSON sidecars, parsing transfer
-//! functions from the command line, encoding, rendering to PNG.
+//! File frontend for `shearwarp`: loading volumes (raw data with JSON sidecars, DICOM
+//! series, NIfTI-1, NRRD, MetaImage), parsing transfer functions from the command line,
+//! encoding, rendering to PNG.
 
+pub mod formats;
+pub mod info;
 pub mod scene;
 pub mod tfspec;
 pub mod volume;

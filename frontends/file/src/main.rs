@@ -25,7 +25,8 @@ struct Cli {
 enum Command {
     /// Render one view of a volume to a PNG.
     Render {
-        /// Volume: a raw file (`.raw` or `.raw.gz`), its JSON sidecar, or a `.swv`.
+        /// Volume: a DICOM directory or file, .nii/.nii.gz, .nrrd/.nhdr, .mhd/.mha, a raw
+        /// file (`.raw`, `.raw.gz`) or its JSON sidecar, or a `.swv`.
         volume: PathBuf,
         /// Output PNG.
         #[arg(short, long)]
@@ -35,7 +36,8 @@ enum Command {
     },
     /// Classify and run-length encode a volume into a streamable `.swv` file.
     Encode {
-        /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
+        /// Volume: a DICOM directory or file, .nii/.nii.gz, .nrrd/.nhdr, .mhd/.mha, a raw
+        /// file (`.raw`, `.raw.gz`) or its JSON sidecar.
         volume: PathBuf,
         /// Output `.swv` file.
         #[arg(short, long)]
@@ -54,6 +56,19 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         tolerance: u8,
     },
+    /// Describe a volume: dims, spacing, value range, a text histogram and suggested
+    /// transfer-function presets.
+    Info {
+        /// Volume: a DICOM directory or file, .nii/.nii.gz, .nrrd/.nhdr, .mhd/.mha, or a
+        /// raw file with its JSON sidecar.
+        volume: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Prefer the 16-bit file when a sidecar lists one.
+        #[arg(long)]
+        u16: bool,
+    },
     /// Print the fixed memory the core needs for a maximum volume and image width.
     Memory {
         /// Volume dimensions NXxNYxNZ.
@@ -63,7 +78,8 @@ enum Command {
     },
     /// Render N frames turning 360/N degrees about Y and report timings.
     Bench {
-        /// Volume: a raw file (`.raw` or `.raw.gz`) or its JSON sidecar.
+        /// Volume: a DICOM directory or file, .nii/.nii.gz, .nrrd/.nhdr, .mhd/.mha, a raw
+        /// file (`.raw`, `.raw.gz`) or its JSON sidecar.
         volume: PathBuf,
         /// Number of frames.
         #[arg(long, default_value_t = 36)]
@@ -156,6 +172,10 @@ struct RenderOpts {
     /// the view's principal-axis cone, on the viewer's side).
     #[arg(long)]
     shadows: bool,
+    /// Intermediate pixels per voxel (1..=4): resample slices finer than the voxel grid,
+    /// for images larger than the volume's projection.
+    #[arg(long, default_value_t = 1)]
+    supersample: usize,
     /// Compositing threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -482,6 +502,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let p = prepare(&volume, &opts)?;
             let mut src = p.encoded.volume()?;
             let mut r = Renderer::with_threads(&p.encoded.grid, p.camera.width, p.threads);
+            r.set_supersample(opts.supersample)?;
             let frame = r.render(&mut src, &p.camera, &p.look)?;
             scene::save_png(&output, p.camera.width, p.camera.height, &frame)
                 .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
@@ -495,6 +516,24 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 p.camera.width,
                 p.camera.height
             );
+        }
+        Command::Info { volume, json, u16 } => {
+            let prefer = if u16 {
+                volume::Prefer::U16
+            } else {
+                volume::Prefer::U8
+            };
+            let (raw, meta) = volume::load_volume_meta(&volume, prefer)?;
+            let info = shearwarp_file::info::compute(&raw, &meta);
+            let shown = volume.display().to_string();
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&shearwarp_file::info::to_json(&info, &shown))?
+                );
+            } else {
+                print!("{}", shearwarp_file::info::to_text(&info, &shown));
+            }
         }
         Command::Memory { dims, width } => {
             let d: Vec<usize> = dims
@@ -582,6 +621,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let preprocess = t0.elapsed().as_secs_f64() * 1e3;
             let mut src = p.encoded.volume()?;
             let mut r = Renderer::with_threads(&p.encoded.grid, p.camera.width, p.threads);
+            r.set_supersample(opts.supersample)?;
             let mut times = Vec::with_capacity(frames);
             for i in 0..frames {
                 let mut cam = p.camera;
@@ -622,7 +662,12 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
-            ExitCode::FAILURE
+            // Bad input files (unreadable, malformed, unsupported) exit with 2.
+            if e.downcast_ref::<volume::LoadError>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

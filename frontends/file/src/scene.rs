@@ -200,6 +200,7 @@ pub struct Renderer {
     shadow_alpha: Vec<u16>,
     shadow_rows: Vec<u16>,
     shade0: Box<ShadeTable>,
+    supersample: usize,
 }
 
 impl Renderer {
@@ -228,7 +229,20 @@ impl Renderer {
             shadow_alpha: Vec::new(),
             shadow_rows: vec![0; shadow::row_buffer_len(m)],
             shade0: Box::new(ShadeTable::UNSHADED),
+            supersample: 1,
         }
+    }
+
+    /// Composites at `s` intermediate pixels per voxel (1..=4; see
+    /// [`shearwarp_core::view::Factorization::with_supersampling`]).
+    pub fn set_supersample(&mut self, s: usize) -> Result<(), Error> {
+        if !(1..=4).contains(&s) {
+            return Err(Error::BadParameter {
+                reason: "supersampling factor must be 1..=4",
+            });
+        }
+        self.supersample = s;
+        Ok(())
     }
 
     /// Number of compositing threads.
@@ -259,7 +273,7 @@ impl Renderer {
             width: camera.width,
             pixels: &mut frame_px,
         };
-        if self.threads == 1 || look.shadows {
+        if (self.threads == 1 || look.shadows) && self.supersample == 1 {
             let shadow = if look.shadows {
                 let n = self.pixels.len();
                 if self.shadow_alpha.len() < n {
@@ -285,13 +299,40 @@ impl Renderer {
             return Ok(frame_px);
         }
         let grid = source.grid();
-        let frame = Frame::new(&grid, camera, &settings, &mut self.shade, None)?;
-        let tables = frame.tables(&look.color, &self.shade, None);
+        let shade0 = look.shadows.then_some(&mut *self.shade0);
+        let frame = Frame::supersampled(
+            &grid,
+            camera,
+            &settings,
+            &mut self.shade,
+            shade0,
+            self.supersample,
+        )?;
+        let shade0 = look.shadows.then_some(&*self.shade0);
+        let tables = frame.tables(&look.color, &self.shade, shade0);
         let [iw, ih] = frame.view.intermediate;
         let n = iw * ih;
         if self.pixels.len() < n {
             self.pixels.resize(n, [0; 4]);
             self.links.resize(n, 0);
+        }
+        if look.shadows {
+            // The shadow buffer is swept with the slices: one band, one thread.
+            let sn = view::max_intermediate_pixels(grid.dims);
+            if self.shadow_alpha.len() < sn {
+                self.shadow_alpha.resize(sn, 0);
+            }
+            let mut img = Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
+            render::composite_band(
+                source,
+                &frame,
+                &tables,
+                &mut img,
+                &mut self.rows[0],
+                Some((&mut self.shadow_alpha, &mut self.shadow_rows)),
+            )?;
+            warp::warp(&self.pixels[..n], &frame.view, &mut self.out_row, &mut sink)?;
+            return Ok(frame_px);
         }
         let band = Self::BAND_ROWS * iw;
         let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(

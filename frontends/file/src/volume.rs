@@ -29,10 +29,12 @@ use std::path::{Path, PathBuf};
 use flate2::bufread::MultiGzDecoder;
 use serde_json::{Map, Value};
 
-/// Largest accepted extent along any axis.
-pub const MAX_DIM: usize = 4096;
-/// Largest accepted total number of voxels (2^31).
-pub const MAX_VOXELS: u64 = 1 << 31;
+/// Largest accepted extent along any axis (the core's limit).
+pub const MAX_DIM: usize = shearwarp_core::classify::MAX_DIM;
+/// Largest accepted total number of voxels (2^30): the core's limit
+/// ([`shearwarp_core::classify::MAX_VOXELS`]), so a volume the renderer would refuse is
+/// refused before its data is read.
+pub const MAX_VOXELS: u64 = shearwarp_core::classify::MAX_VOXELS as u64;
 /// Largest accepted sidecar file (bytes).
 const MAX_SIDECAR_BYTES: u64 = 1 << 20;
 /// Gzip magic bytes.
@@ -188,6 +190,10 @@ pub enum LoadError {
         path: PathBuf,
         voxel_type: Option<String>,
     },
+    /// A DICOM/NIfTI/NRRD/MetaImage file is malformed or uses something unsupported
+    /// (unknown format, unsupported transfer syntax, truncated pixel data, inconsistent
+    /// slices, ...).
+    Format { path: PathBuf, reason: String },
 }
 
 impl LoadError {
@@ -202,7 +208,8 @@ impl LoadError {
             | LoadError::InvalidSpacing { path, .. }
             | LoadError::WrongSize { path, .. }
             | LoadError::CorruptGzip { path, .. }
-            | LoadError::UnknownVoxelType { path, .. } => path,
+            | LoadError::UnknownVoxelType { path, .. }
+            | LoadError::Format { path, .. } => path,
             LoadError::SidecarNotFound { data, .. } => data,
         }
     }
@@ -218,12 +225,28 @@ impl fmt::Display for LoadError {
                     write!(f, "{}: cannot read: {source}", path.display())
                 }
             }
-            LoadError::SidecarNotFound { data, sidecar } => write!(
-                f,
-                "{}: no JSON sidecar found (looked for {})",
-                data.display(),
-                sidecar.display()
-            ),
+            LoadError::SidecarNotFound { data, sidecar } => {
+                let name = file_name_string(data);
+                let raw_like = voxel_type_from_name(&name).is_some()
+                    || strip_suffix_ci(data_file_base(&name), ".raw").is_some()
+                    || name.to_ascii_lowercase().contains(".raw");
+                if raw_like {
+                    write!(
+                        f,
+                        "{}: no JSON sidecar found (looked for {})",
+                        data.display(),
+                        sidecar.display()
+                    )
+                } else {
+                    write!(
+                        f,
+                        "{}: unknown volume format (not DICOM, NIfTI, NRRD or MetaImage, and no \
+                         JSON sidecar {} for raw data)",
+                        data.display(),
+                        sidecar.display()
+                    )
+                }
+            }
             LoadError::InvalidJson { path, message } => {
                 write!(f, "{}: invalid JSON sidecar: {message}", path.display())
             }
@@ -276,6 +299,7 @@ impl fmt::Display for LoadError {
             LoadError::CorruptGzip { path, source } => {
                 write!(f, "{}: corrupt gzip stream: {source}", path.display())
             }
+            LoadError::Format { path, reason } => write!(f, "{}: {reason}", path.display()),
             LoadError::UnknownVoxelType { path, voxel_type } => match voxel_type {
                 Some(t) => write!(
                     f,
@@ -317,6 +341,114 @@ pub fn load_volume(path: &Path) -> Result<RawVolume, LoadError> {
 /// name ends in `.gz` or (when the size does not match raw data) the file starts with
 /// the gzip magic bytes.
 pub fn load_volume_with(path: &Path, prefer: Prefer) -> Result<RawVolume, LoadError> {
+    load_volume_meta(path, prefer).map(|(v, _)| v)
+}
+
+/// The format of a volume path, decided by kind (directory → DICOM series), extension
+/// and magic bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// Raw voxels with a JSON sidecar (the shared data set's format).
+    RawJson,
+    /// A directory of DICOM files, or one DICOM file (its series is loaded).
+    Dicom,
+    /// NIfTI-1 `.nii`, `.nii.gz`, `.hdr`/`.img`.
+    Nifti,
+    /// NRRD `.nrrd` (attached data) or `.nhdr` (detached).
+    Nrrd,
+    /// MetaImage `.mhd` or `.mha`.
+    MetaImage,
+}
+
+/// Decides the format of `path`; `LoadError::Format` for an unknown one.
+pub fn detect_format(path: &Path) -> Result<Format, LoadError> {
+    let meta = std::fs::metadata(path).map_err(|source| LoadError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if meta.is_dir() {
+        return Ok(Format::Dicom);
+    }
+    let lower = file_name_string(path).to_ascii_lowercase();
+    let ends = |s: &str| lower.ends_with(s);
+    if ends(".json") || ends(".raw") || ends(".raw.gz") {
+        return Ok(Format::RawJson);
+    }
+    if ends(".nii") || ends(".nii.gz") || ends(".hdr") {
+        return Ok(Format::Nifti);
+    }
+    if ends(".nrrd") || ends(".nhdr") {
+        return Ok(Format::Nrrd);
+    }
+    if ends(".mhd") || ends(".mha") {
+        return Ok(Format::MetaImage);
+    }
+    if ends(".dcm") || ends(".dicom") || ends(".ima") {
+        return Ok(Format::Dicom);
+    }
+    // Sniff the first bytes.
+    let mut head = [0u8; 352];
+    let n = File::open(path)
+        .and_then(|mut f| {
+            let mut n = 0;
+            loop {
+                let k = f.read(&mut head[n..])?;
+                if k == 0 || n + k == head.len() {
+                    return Ok(n + k);
+                }
+                n += k;
+            }
+        })
+        .map_err(|source| LoadError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let head = &head[..n];
+    if head.len() >= 132 && &head[128..132] == b"DICM" {
+        return Ok(Format::Dicom);
+    }
+    if head.starts_with(b"NRRD") {
+        return Ok(Format::Nrrd);
+    }
+    if head.len() >= 348 && (&head[344..348] == b"n+1\0" || &head[344..348] == b"ni1\0") {
+        return Ok(Format::Nifti);
+    }
+    if head.starts_with(b"ObjectType") || head.starts_with(b"NDims") {
+        return Ok(Format::MetaImage);
+    }
+    if sidecar_path_for(path).is_file() {
+        return Ok(Format::RawJson);
+    }
+    Err(LoadError::Format {
+        path: path.to_path_buf(),
+        reason: "unknown volume format (expected a DICOM directory or file, .nii, .nii.gz, \
+                 .nrrd, .nhdr, .mhd, .mha, or raw data with a JSON sidecar)"
+            .into(),
+    })
+}
+
+/// Loads a volume of any supported format (see [`detect_format`]) together with what is
+/// known about its values; [`crate::formats`] describes how values become u8/u16.
+pub fn load_volume_meta(
+    path: &Path,
+    prefer: Prefer,
+) -> Result<(RawVolume, crate::formats::VolumeMeta), LoadError> {
+    use crate::formats::{self, VolumeMeta};
+    match detect_format(path) {
+        Ok(Format::Dicom) => return formats::dicom::load(path),
+        Ok(Format::Nifti) => return formats::nifti::load(path),
+        Ok(Format::Nrrd) => return formats::nrrd::load(path),
+        Ok(Format::MetaImage) => return formats::mhd::load(path),
+        // Missing files are reported by the sidecar loader below, as before.
+        Ok(Format::RawJson) | Err(LoadError::Io { .. }) | Err(LoadError::Format { .. }) => {}
+        Err(e) => return Err(e),
+    }
+    let v = load_raw_json(path, prefer)?;
+    let t = v.voxel_type().as_str();
+    Ok((v, VolumeMeta::identity("raw+json", t)))
+}
+
+fn load_raw_json(path: &Path, prefer: Prefer) -> Result<RawVolume, LoadError> {
     if is_sidecar_name(path) {
         let sidecar = read_sidecar(path)?;
         let (data_path, voxel_type) = choose_file(path, &sidecar, prefer)?;
@@ -586,7 +718,7 @@ fn json_kind(v: &Value) -> &'static str {
 }
 
 /// Checks dims against the limits with overflow-free arithmetic.
-fn check_dims(path: &Path, dims: [u64; 3]) -> Result<[usize; 3], LoadError> {
+pub(crate) fn check_dims(path: &Path, dims: [u64; 3]) -> Result<[usize; 3], LoadError> {
     let absurd = |reason: String| LoadError::AbsurdDims {
         path: path.to_path_buf(),
         dims,
@@ -838,6 +970,11 @@ fn read_data(
         file_len != expected && reader.fill_buf().map_err(io_err)?.starts_with(&GZIP_MAGIC)
     };
 
+    // Plain raw data of the wrong size is refused from its metadata alone, before any
+    // buffer is reserved for it.
+    if !gzip && file_len != expected {
+        return Err(wrong_size(file_len, false));
+    }
     // Never reserve more than the input can plausibly need up front; the cap on the
     // reader bounds the final size anyway.
     let cap = expected.saturating_add(1);
@@ -858,9 +995,6 @@ fn read_data(
                 source,
             })?;
     } else {
-        if file_len != expected {
-            return Err(wrong_size(file_len, false));
-        }
         reader.take(cap).read_to_end(&mut bytes).map_err(io_err)?;
     }
     if bytes.len() as u64 != expected {
@@ -1451,6 +1585,8 @@ mod tests {
             "[1, 1, 18446744073709551615]",
             "[4096, 4096, 4096]",
             "[4096, 4096, 129]",
+            // Over the core's 2^30 voxels (the loader used to allow 2^31).
+            "[4096, 4096, 65]",
         ]
         .iter()
         .enumerate()
@@ -1467,7 +1603,7 @@ mod tests {
         let p = dir.write(
             "limit.json",
             sidecar_json(
-                "[4096, 4096, 128]",
+                "[4096, 4096, 64]",
                 "[1, 1, 1]",
                 r#"{"u8": {"file": "a.u8.raw"}}"#,
             )
