@@ -1,0 +1,369 @@
+//! Running one scene: preprocessing and frame timings for shearwarp (1 and 2 threads) and
+//! VolPack, and PSNR of each against the reference ray caster.
+
+use crate::scenes::{Loaded, Scene};
+use crate::volpack::{self, VolPack};
+use shearwarp_core::view::Camera;
+use shearwarp_file::scene::{self, Encoded, Renderer};
+use shearwarp_tests::metrics;
+use shearwarp_tests::reference::{self, RefMode, RefView};
+use std::error::Error;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// How to run a scene.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Frames per image size, `360/frames` degrees apart about the vertical axis.
+    pub frames: usize,
+    /// Passes over the frames; each view's time is its best pass.
+    pub rounds: usize,
+    /// Square image sides.
+    pub sizes: Vec<usize>,
+    /// Preprocessing repetitions (the median is reported).
+    pub prep_runs: usize,
+    /// Also time shearwarp with this many threads (none: skip).
+    pub threads: Option<usize>,
+    /// Compare against the reference ray caster.
+    pub psnr: bool,
+    /// Where reference images are cached.
+    pub cache_dir: PathBuf,
+    /// Where to write review images (shearwarp | VolPack | reference), if anywhere.
+    pub images_dir: Option<PathBuf>,
+    /// Skip VolPack even when it is built in.
+    pub no_volpack: bool,
+}
+
+/// Median of a set of timings, ms.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stats {
+    pub median: f64,
+}
+
+impl Stats {
+    pub fn of(samples: &[f64]) -> Stats {
+        let mut s = samples.to_vec();
+        s.sort_by(f64::total_cmp);
+        let n = s.len();
+        if n == 0 {
+            return Stats::default();
+        }
+        let median = if n % 2 == 1 {
+            s[n / 2]
+        } else {
+            0.5 * (s[n / 2 - 1] + s[n / 2])
+        };
+        Stats { median }
+    }
+}
+
+/// Results at one image size.
+#[derive(Clone, Debug, Default)]
+pub struct SizeResult {
+    pub size: usize,
+    pub sw: Stats,
+    pub sw_threads: Option<Stats>,
+    /// The threaded images equal the single-threaded ones.
+    pub threads_identical: Option<bool>,
+    pub vp: Option<Stats>,
+    pub psnr_sw: Option<f64>,
+    pub psnr_vp: Option<f64>,
+}
+
+/// Results of one scene.
+#[derive(Clone, Debug, Default)]
+pub struct SceneResult {
+    pub name: String,
+    pub dims: [usize; 3],
+    pub sw_prep: f64,
+    pub vp_prep: Option<f64>,
+    /// Bytes of shearwarp's three RLE copies and VolPack's.
+    pub sw_bytes: usize,
+    /// Non-transparent voxels shearwarp stores per axis copy.
+    pub sw_visible: usize,
+    pub vp_bytes: Option<usize>,
+    pub sizes: Vec<SizeResult>,
+    pub threads: Option<usize>,
+}
+
+/// Rotation of frame `f`: about the vertical axis, `360/frames` degrees apart.
+fn frame_view(f: usize, frames: usize) -> (f64, f64) {
+    (0.0, 360.0 * f as f64 / frames as f64)
+}
+
+fn camera((rx, ry): (f64, f64), size: usize) -> Camera {
+    Camera {
+        rotate_x: rx,
+        rotate_y: ry,
+        width: size,
+        height: size,
+    }
+}
+
+fn rgb_of(px: &[[u8; 4]]) -> Vec<[u8; 3]> {
+    px.iter().map(|p| [p[0], p[1], p[2]]).collect()
+}
+
+fn rgb_chunks(b: &[u8]) -> Vec<[u8; 3]> {
+    b.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+/// 64-bit FNV-1a, to key cached reference images.
+fn fnv(bytes: &[u8], mut h: u64) -> u64 {
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x100_0000_01b3);
+    }
+    h
+}
+
+/// The reference image of `scene`'s PSNR view at `size`, from the cache when possible.
+fn reference_image(
+    scene: &Scene,
+    vol: &Loaded,
+    size: usize,
+    opts: &Options,
+) -> Result<Vec<[u8; 3]>, Box<dyn Error>> {
+    let (rx, ry) = scene.psnr_view;
+    let key = format!(
+        "v1 {} {:?} {:?} {:?} {rx} {ry} {size}",
+        env!("BENCH_REFERENCE_HASH"),
+        vol.raw.dims,
+        vol.raw.spacing,
+        scene.look
+    );
+    let h = fnv(vol.data(), fnv(key.as_bytes(), 0xcbf2_9ce4_8422_2325));
+    let path = opts
+        .cache_dir
+        .join(format!("ref-{}-{size}-{h:016x}.rgb", scene.name));
+    if let Ok(b) = std::fs::read(&path) {
+        if b.len() == size * size * 3 {
+            return Ok(rgb_chunks(&b));
+        }
+    }
+    let t = Instant::now();
+    let img = reference::render_reference(
+        &vol.ref_volume(),
+        &scene.look.ref_tf(),
+        Some(&scene.look.ref_shading()),
+        RefMode::Composite,
+        &RefView {
+            rotate_x: rx,
+            rotate_y: ry,
+            width: size,
+            height: size,
+            depth_cue: None,
+            shadows: false,
+        },
+    );
+    let img = metrics::to_rgb8(&img);
+    eprintln!(
+        "  reference {size}x{size} rendered in {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+    std::fs::create_dir_all(&opts.cache_dir)?;
+    std::fs::write(&path, img.iter().flatten().copied().collect::<Vec<u8>>())?;
+    Ok(img)
+}
+
+/// Writes `images` side by side (each `size`²) as one PNG.
+fn save_strip(path: &std::path::Path, size: usize, images: &[&[[u8; 3]]]) -> std::io::Result<()> {
+    let w = size * images.len();
+    let mut out = vec![[0u8; 3]; w * size];
+    for (n, img) in images.iter().enumerate() {
+        for y in 0..size {
+            out[y * w + n * size..y * w + (n + 1) * size]
+                .copy_from_slice(&img[y * size..(y + 1) * size]);
+        }
+    }
+    metrics::save_png(path, w, size, &out)
+}
+
+/// Times shearwarp's preprocessing `runs` times; returns the last encoding and the median.
+fn sw_preprocess(
+    vol: &Loaded,
+    scene: &Scene,
+    runs: usize,
+) -> Result<(Encoded, f64), Box<dyn Error>> {
+    let class = scene.look.classification();
+    let mut times = Vec::new();
+    // Earlier runs are dropped at the end of each iteration, so at most one is alive.
+    for _ in 1..runs.max(1) {
+        let t = Instant::now();
+        let _enc = scene::encode(&vol.raw, &class)?;
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let t = Instant::now();
+    let enc = scene::encode(&vol.raw, &class)?;
+    times.push(t.elapsed().as_secs_f64() * 1e3);
+    Ok((enc, Stats::of(&times).median))
+}
+
+/// Times VolPack's preprocessing `runs` times; returns the last scene and the median.
+fn vp_preprocess(
+    vol: &Loaded,
+    scene: &Scene,
+    runs: usize,
+) -> Result<(VolPack, f64), Box<dyn Error>> {
+    let setup = volpack::Setup::new(vol, &scene.look)?;
+    let mut times = Vec::new();
+    for _ in 1..runs.max(1) {
+        let (_vp, ms) = VolPack::new(&setup, vol.data())?;
+        times.push(ms);
+    }
+    let (vp, ms) = VolPack::new(&setup, vol.data())?;
+    times.push(ms);
+    Ok((vp, Stats::of(&times).median))
+}
+
+/// Runs one scene.
+pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn Error>> {
+    let t = Instant::now();
+    let vol = scene.load()?;
+    let [nx, ny, nz] = vol.raw.dims;
+    eprintln!(
+        "== {} ({nx}x{ny}x{nz}), loaded in {:.0} ms",
+        scene.name,
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    let (enc, sw_prep) = sw_preprocess(&vol, scene, opts.prep_runs)?;
+    let look = scene.look.look(enc.range)?;
+    let mut vp = None;
+    let mut vp_prep = None;
+    if volpack::AVAILABLE && !opts.no_volpack {
+        let (v, ms) = vp_preprocess(&vol, scene, opts.prep_runs)?;
+        vp_prep = Some(ms);
+        vp = Some(v);
+    }
+    let mut res = SceneResult {
+        name: scene.name.clone(),
+        dims: vol.raw.dims,
+        sw_prep,
+        vp_prep,
+        sw_bytes: enc.bytes(),
+        sw_visible: enc.visible_voxels(),
+        vp_bytes: vp.as_ref().map(VolPack::classified_bytes),
+        sizes: Vec::new(),
+        threads: opts.threads,
+    };
+    let mut src = enc.volume()?;
+    for &size in &opts.sizes {
+        let mut r1 = Renderer::with_threads(&enc.grid, size, 1);
+        let mut rn = opts
+            .threads
+            .map(|n| Renderer::with_threads(&enc.grid, size, n));
+        let mut vp_img = vec![0u8; size * size * 3];
+        // Per view, the best time over the rounds.
+        let n = opts.frames;
+        let (mut t1, mut tn, mut tv) = (vec![f64::MAX; n], vec![f64::MAX; n], vec![f64::MAX; n]);
+        let mut identical = true;
+        // Frame 0 once untimed (allocations, page faults), then the timed frames, `rounds`
+        // times over. The renderers take turns frame by frame so that load from other
+        // processes on the machine falls on all of them alike.
+        let warmup = std::iter::once((usize::MAX, 0));
+        let timed = (0..opts.rounds.max(1)).flat_map(|_| (0..n).map(|f| (f, f)));
+        for (slot, f) in warmup.chain(timed) {
+            let view = frame_view(f, n);
+            let cam = camera(view, size);
+            let t = Instant::now();
+            let img1 = r1.render(&mut src, &cam, &look)?;
+            let ms1 = t.elapsed().as_secs_f64() * 1e3;
+            let mut msn = f64::MAX;
+            if let Some(r) = rn.as_mut() {
+                let t = Instant::now();
+                let img = r.render(&mut src, &cam, &look)?;
+                msn = t.elapsed().as_secs_f64() * 1e3;
+                identical &= img == img1;
+            }
+            let mut msv = f64::MAX;
+            if let Some(v) = vp.as_mut() {
+                msv = v.render(view.0, view.1, size, size, &mut vp_img)?;
+            }
+            if slot < n {
+                t1[slot] = t1[slot].min(ms1);
+                tn[slot] = tn[slot].min(msn);
+                tv[slot] = tv[slot].min(msv);
+            }
+        }
+        let mut sr = SizeResult {
+            size,
+            sw: Stats::of(&t1),
+            sw_threads: rn.as_ref().map(|_| Stats::of(&tn)),
+            threads_identical: rn.as_ref().map(|_| identical),
+            vp: vp.as_ref().map(|_| Stats::of(&tv)),
+            psnr_sw: None,
+            psnr_vp: None,
+        };
+        if opts.psnr || opts.images_dir.is_some() {
+            let cam = camera(scene.psnr_view, size);
+            let sw_img = rgb_of(&r1.render(&mut src, &cam, &look)?);
+            let vp_rgb = match vp.as_mut() {
+                Some(v) => {
+                    v.render(
+                        scene.psnr_view.0,
+                        scene.psnr_view.1,
+                        size,
+                        size,
+                        &mut vp_img,
+                    )?;
+                    Some(rgb_chunks(&vp_img))
+                }
+                None => None,
+            };
+            let ref_img = if opts.psnr {
+                Some(reference_image(scene, &vol, size, opts)?)
+            } else {
+                None
+            };
+            if let Some(r) = &ref_img {
+                sr.psnr_sw = Some(metrics::psnr_rgb8(&sw_img, r));
+                sr.psnr_vp = vp_rgb.as_ref().map(|v| metrics::psnr_rgb8(v, r));
+            }
+            if let Some(dir) = &opts.images_dir {
+                std::fs::create_dir_all(dir)?;
+                let blank = vec![[0u8; 3]; size * size];
+                let strip: Vec<&[[u8; 3]]> = vec![
+                    &sw_img,
+                    vp_rgb.as_deref().unwrap_or(&blank),
+                    ref_img.as_deref().unwrap_or(&blank),
+                ];
+                save_strip(
+                    &dir.join(format!("{}-{size}.png", scene.name)),
+                    size,
+                    &strip,
+                )?;
+            }
+        }
+        eprintln!(
+            "  {size}x{size}: shearwarp {:.2} ms{}{}",
+            sr.sw.median,
+            sr.sw_threads
+                .map(|s| format!(", {} threads {:.2} ms", opts.threads.unwrap_or(1), s.median))
+                .unwrap_or_default(),
+            sr.vp
+                .map(|s| format!(", VolPack {:.2} ms", s.median))
+                .unwrap_or_default()
+        );
+        res.sizes.push(sr);
+    }
+    Ok(res)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_median() {
+        assert_eq!(Stats::of(&[3.0, 1.0, 2.0]).median, 2.0);
+        assert_eq!(Stats::of(&[4.0, 1.0, 2.0, 3.0]).median, 2.5);
+        assert_eq!(Stats::of(&[]).median, 0.0);
+    }
+
+    #[test]
+    fn frames_turn_about_the_vertical_axis() {
+        assert_eq!(frame_view(0, 36), (0.0, 0.0));
+        assert_eq!(frame_view(9, 36), (0.0, 90.0));
+        assert_eq!(frame_view(35, 36), (0.0, 350.0));
+    }
+}

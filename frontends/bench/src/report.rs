@@ -1,0 +1,178 @@
+//! Tables for the terminal and for BENCHMARKS.md.
+
+use crate::bench::SceneResult;
+use std::fmt::Write as _;
+
+/// Start and end markers of the generated block in BENCHMARKS.md.
+pub const BEGIN: &str = "<!-- shearwarp-bench:begin (generated; edit outside the markers) -->";
+pub const END: &str = "<!-- shearwarp-bench:end -->";
+
+fn opt(v: Option<f64>, prec: usize) -> String {
+    match v {
+        Some(x) if x.is_finite() => format!("{x:.prec$}"),
+        Some(_) => "inf".into(),
+        None => "–".into(),
+    }
+}
+
+fn ratio(a: f64, b: Option<f64>) -> Option<f64> {
+    b.filter(|&b| b > 0.0).map(|b| a / b)
+}
+
+/// Column headers of the main table.
+fn headers(threads: Option<usize>) -> Vec<String> {
+    let t = threads.unwrap_or(2);
+    vec![
+        "scene".into(),
+        "image".into(),
+        "prep sw ms".into(),
+        "prep VP ms".into(),
+        "prep sw/VP".into(),
+        "sw ms/frame".into(),
+        format!("sw {t}T ms/frame"),
+        format!("{t}T speed-up"),
+        "VP ms/frame".into(),
+        "sw/VP".into(),
+        "PSNR sw dB".into(),
+        "PSNR VP dB".into(),
+    ]
+}
+
+fn rows(results: &[SceneResult]) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    for r in results {
+        for s in &r.sizes {
+            let [nx, ny, nz] = r.dims;
+            let t = s.sw_threads.map(|t| t.median);
+            out.push(vec![
+                format!("{} ({nx}×{ny}×{nz})", r.name),
+                format!("{0}×{0}", s.size),
+                format!("{:.1}", r.sw_prep),
+                opt(r.vp_prep, 1),
+                opt(ratio(r.sw_prep, r.vp_prep), 2),
+                format!("{:.2}", s.sw.median),
+                opt(t, 2),
+                opt(t.and_then(|t| ratio(s.sw.median, Some(t))), 2),
+                opt(s.vp.map(|v| v.median), 2),
+                opt(ratio(s.sw.median, s.vp.map(|v| v.median)), 2),
+                opt(s.psnr_sw, 1),
+                opt(s.psnr_vp, 1),
+            ]);
+        }
+    }
+    out
+}
+
+/// Plain-text table for the terminal.
+pub fn text_table(results: &[SceneResult]) -> String {
+    let h = headers(results.iter().find_map(|r| r.threads));
+    let rows = rows(results);
+    let mut widths: Vec<usize> = h.iter().map(|c| c.chars().count()).collect();
+    for r in &rows {
+        for (w, c) in widths.iter_mut().zip(r) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cells: &[String]| -> String {
+        let mut s = String::new();
+        for (i, (c, w)) in cells.iter().zip(&widths).enumerate() {
+            let pad = w - c.chars().count();
+            if i < 2 {
+                let _ = write!(s, "{c}{}  ", " ".repeat(pad));
+            } else {
+                let _ = write!(s, "{}{c}  ", " ".repeat(pad));
+            }
+        }
+        s.trim_end().to_string()
+    };
+    let mut out = line(&h);
+    out.push('\n');
+    for r in &rows {
+        out.push_str(&line(r));
+        out.push('\n');
+    }
+    out
+}
+
+/// Markdown table.
+pub fn markdown_table(results: &[SceneResult]) -> String {
+    let h = headers(results.iter().find_map(|r| r.threads));
+    let mut out = format!("| {} |\n", h.join(" | "));
+    let align: Vec<&str> = (0..h.len())
+        .map(|i| if i < 2 { "---" } else { "---:" })
+        .collect();
+    let _ = writeln!(out, "|{}|", align.join("|"));
+    for r in rows(results) {
+        let _ = writeln!(out, "| {} |", r.join(" | "));
+    }
+    out
+}
+
+/// Replaces the generated block of `existing` (or appends one) with `block`.
+pub fn splice(existing: &str, block: &str) -> String {
+    let generated = format!("{BEGIN}\n{block}{END}\n");
+    match (existing.find(BEGIN), existing.find(END)) {
+        (Some(b), Some(e)) if e > b => {
+            let after = &existing[e + END.len()..];
+            let after = after.strip_prefix('\n').unwrap_or(after);
+            format!("{}{generated}{after}", &existing[..b])
+        }
+        _ => {
+            let mut s = existing.to_string();
+            if !s.is_empty() && !s.ends_with("\n\n") {
+                s.push_str(if s.ends_with('\n') { "\n" } else { "\n\n" });
+            }
+            s.push_str(&generated);
+            s
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench::{SizeResult, Stats};
+
+    fn sample() -> Vec<SceneResult> {
+        vec![SceneResult {
+            name: "s".into(),
+            dims: [2, 3, 4],
+            sw_prep: 10.0,
+            vp_prep: Some(40.0),
+            sw_bytes: 1,
+            sw_visible: 1,
+            vp_bytes: Some(2),
+            threads: Some(2),
+            sizes: vec![SizeResult {
+                size: 256,
+                sw: Stats { median: 1.0 },
+                sw_threads: Some(Stats { median: 0.5 }),
+                threads_identical: Some(true),
+                vp: Some(Stats { median: 4.0 }),
+                psnr_sw: Some(40.0),
+                psnr_vp: None,
+            }],
+        }]
+    }
+
+    #[test]
+    fn tables_show_ratios() {
+        let t = text_table(&sample());
+        assert!(t.contains("0.25"), "{t}");
+        assert!(t.contains("2.00"), "{t}");
+        let m = markdown_table(&sample());
+        assert_eq!(m.lines().count(), 3);
+        assert!(m.contains("| s (2×3×4) | 256×256 | 10.0 | 40.0 | 0.25 | 1.00 | 0.50 | 2.00 | 4.00 | 0.25 | 40.0 | – |"), "{m}");
+    }
+
+    #[test]
+    fn splice_replaces_or_appends() {
+        let a = splice("# T\n\ntext\n", "one\n");
+        assert_eq!(a, format!("# T\n\ntext\n\n{BEGIN}\none\n{END}\n"));
+        let b = splice(&a, "two\n");
+        assert_eq!(b, format!("# T\n\ntext\n\n{BEGIN}\ntwo\n{END}\n"));
+        let c = splice(&format!("{b}tail\n"), "three\n");
+        assert_eq!(c, format!("# T\n\ntext\n\n{BEGIN}\nthree\n{END}\ntail\n"));
+        assert_eq!(splice("", "x\n"), format!("{BEGIN}\nx\n{END}\n"));
+    }
+}
