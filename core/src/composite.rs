@@ -224,6 +224,11 @@ impl Row<'_> {
 
     /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor. `shadow`
     /// gives the first light's transmittance for voxels of row `j`.
+    /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor. `shadow`
+    /// gives the first light's transmittance for voxels of row `j`. With `needed`, only
+    /// voxels some non-opaque pixel will read are shaded (the others stay zero, and only
+    /// opaque pixels, which are never composited again, would read them).
+    #[allow(clippy::too_many_arguments)]
     fn fill(
         &mut self,
         runs: &[u8],
@@ -232,70 +237,124 @@ impl Row<'_> {
         scale: u32,
         j: i64,
         shadow: Option<&ShadowLookup<'_>>,
+        needed: Option<&Needed<'_>>,
     ) {
         self.clear();
         let mut v = 0usize;
         let mut lo = usize::MAX;
         let mut hi = 0;
         for (a, b) in Spans::new(runs) {
-            let out = &mut self.buf[a + 1..b + 1];
-            let src = &voxels[v..v + (b - a)];
+            let base = v;
             v += b - a;
             lo = lo.min(a + 1);
             hi = b + 1;
-            match (t.mode, shadow, t.shade0) {
-                (Mode::Composite, Some(sh), Some(s0)) => {
-                    for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
-                        let alpha = t.opacity[vox.opacity as usize] as u32;
-                        let base = t.color[vox.scalar as usize];
-                        let rest = t.shade.shade_raw(vox.normal, base);
-                        let lit = s0.shade_raw(vox.normal, base);
-                        let tr = sh.transmittance(a + idx, j);
-                        let am = fixed::mul(alpha, scale);
-                        let mut px = [0u16; 4];
-                        for c in 0..3 {
-                            let v = (rest[c] + fixed::mul(lit[c].min(2 * ONE), tr)).min(ONE);
-                            px[c] = fixed::mul(v, am) as u16;
+            match needed {
+                None => {
+                    let src = &voxels[base..base + (b - a)];
+                    shade_run(&mut self.buf[a + 1..b + 1], src, a, t, scale, j, shadow);
+                }
+                Some(n) => {
+                    let mut c = a;
+                    while c < b {
+                        if !n.voxel(c) {
+                            c += 1;
+                            continue;
                         }
-                        px[3] = alpha as u16;
-                        *o = px;
-                    }
-                }
-                (Mode::Composite, _, _) if scale < ONE => {
-                    for (o, vox) in out.iter_mut().zip(src) {
-                        let alpha = t.opacity[vox.opacity as usize] as u32;
-                        let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
-                        let a = fixed::mul(alpha, scale);
-                        *o = [
-                            fixed::mul(c[0], a) as u16,
-                            fixed::mul(c[1], a) as u16,
-                            fixed::mul(c[2], a) as u16,
-                            alpha as u16,
-                        ];
-                    }
-                }
-                (Mode::Composite, _, _) => {
-                    for (o, vox) in out.iter_mut().zip(src) {
-                        let alpha = t.opacity[vox.opacity as usize] as u32;
-                        let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
-                        *o = [
-                            fixed::mul(c[0], alpha) as u16,
-                            fixed::mul(c[1], alpha) as u16,
-                            fixed::mul(c[2], alpha) as u16,
-                            alpha as u16,
-                        ];
-                    }
-                }
-                (Mode::Mip, _, _) => {
-                    for (o, vox) in out.iter_mut().zip(src) {
-                        let g = fixed::from_u8(vox.scalar) as u16;
-                        *o = [g; 4];
+                        let mut d = c + 1;
+                        while d < b && n.voxel(d) {
+                            d += 1;
+                        }
+                        let src = &voxels[base + (c - a)..base + (d - a)];
+                        shade_run(&mut self.buf[c + 1..d + 1], src, c, t, scale, j, shadow);
+                        c = d;
                     }
                 }
             }
         }
         if lo < hi {
             self.dirty = (lo, hi);
+        }
+    }
+}
+
+/// Which voxels of a row some non-opaque pixel reads: voxel `i` feeds pixels `i + shift`
+/// and `i + shift + 1` of the (up to two) scanlines that use the row.
+pub(crate) struct Needed<'a> {
+    lines: [Option<&'a [u16]>; 2],
+    shift: i64,
+}
+
+impl Needed<'_> {
+    #[inline(always)]
+    fn voxel(&self, i: usize) -> bool {
+        let u = i as i64 + self.shift;
+        self.lines.iter().flatten().any(|links| {
+            let open = |p: i64| p >= 0 && (p as usize) < links.len() && links[p as usize] == 0;
+            open(u) || open(u + 1)
+        })
+    }
+}
+
+/// Shades voxels `src` (the first at index `first` of row `j`) into `out`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn shade_run(
+    out: &mut [Rgba],
+    src: &[Voxel],
+    first: usize,
+    t: &SliceTables<'_>,
+    scale: u32,
+    j: i64,
+    shadow: Option<&ShadowLookup<'_>>,
+) {
+    match (t.mode, shadow, t.shade0) {
+        (Mode::Composite, Some(sh), Some(s0)) => {
+            for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
+                let alpha = t.opacity[vox.opacity as usize] as u32;
+                let base = t.color[vox.scalar as usize];
+                let rest = t.shade.shade_raw(vox.normal, base);
+                let lit = s0.shade_raw(vox.normal, base);
+                let tr = sh.transmittance(first + idx, j);
+                let am = fixed::mul(alpha, scale);
+                let mut px = [0u16; 4];
+                for c in 0..3 {
+                    let v = (rest[c] + fixed::mul(lit[c].min(2 * ONE), tr)).min(ONE);
+                    px[c] = fixed::mul(v, am) as u16;
+                }
+                px[3] = alpha as u16;
+                *o = px;
+            }
+        }
+        (Mode::Composite, _, _) if scale < ONE => {
+            for (o, vox) in out.iter_mut().zip(src) {
+                let alpha = t.opacity[vox.opacity as usize] as u32;
+                let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
+                let a = fixed::mul(alpha, scale);
+                *o = [
+                    fixed::mul(c[0], a) as u16,
+                    fixed::mul(c[1], a) as u16,
+                    fixed::mul(c[2], a) as u16,
+                    alpha as u16,
+                ];
+            }
+        }
+        (Mode::Composite, _, _) => {
+            for (o, vox) in out.iter_mut().zip(src) {
+                let alpha = t.opacity[vox.opacity as usize] as u32;
+                let c = t.shade.shade(vox.normal, t.color[vox.scalar as usize]);
+                *o = [
+                    fixed::mul(c[0], alpha) as u16,
+                    fixed::mul(c[1], alpha) as u16,
+                    fixed::mul(c[2], alpha) as u16,
+                    alpha as u16,
+                ];
+            }
+        }
+        (Mode::Mip, _, _) => {
+            for (o, vox) in out.iter_mut().zip(src) {
+                let g = fixed::from_u8(vox.scalar) as u16;
+                *o = [g; 4];
+            }
         }
     }
 }
@@ -419,10 +478,50 @@ pub fn composite_slice(
     };
     let mut top_runs = row_of(jt_lo).0;
     let first = row_of(jt_lo);
-    top.fill(first.0, first.1, tables, scale, jt_lo, shadow);
+    // Row j is read by scanlines j + n_v (as the bottom row) and j + n_v + 1 (top).
+    // In MIP no pixel becomes opaque, so every voxel is needed.
+    let skip_opaque_voxels = tables.mode == Mode::Composite;
+    let row0 = img.row0;
+    fn line_links(
+        links: &[u16],
+        v: i64,
+        band: (i64, i64),
+        row0: usize,
+        w: usize,
+    ) -> Option<&[u16]> {
+        if v >= band.0 && v < band.1 {
+            let l = (v as usize - row0) * w;
+            links.get(l..l + w)
+        } else {
+            None
+        }
+    }
+    {
+        let v0 = jt_lo + ov.n as i64;
+        let need = Needed {
+            lines: [
+                line_links(img.links, v0, (band_lo, band_hi), row0, width),
+                line_links(img.links, v0 + 1, (band_lo, band_hi), row0, width),
+            ],
+            shift: ou.n as i64,
+        };
+        let need = skip_opaque_voxels.then_some(&need);
+        top.fill(first.0, first.1, tables, scale, jt_lo, shadow, need);
+    }
     for jt in jt_lo..=jt_hi {
         let next = row_of(jt + 1);
-        bot.fill(next.0, next.1, tables, scale, jt + 1, shadow);
+        {
+            let v0 = jt + 1 + ov.n as i64;
+            let need = Needed {
+                lines: [
+                    line_links(img.links, v0, (band_lo, band_hi), row0, width),
+                    line_links(img.links, v0 + 1, (band_lo, band_hi), row0, width),
+                ],
+                shift: ou.n as i64,
+            };
+            let need = skip_opaque_voxels.then_some(&need);
+            bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, need);
+        }
         let v = jt + ov.n as i64 + 1;
         if v >= band_lo && v < band_hi {
             let line = (v as usize - img.row0) * width;
@@ -501,10 +600,10 @@ fn composite_slice_supersampled(
                 core::mem::swap(&mut top, &mut bot);
             } else {
                 let r = row_of(jt);
-                top.fill(r.0, r.1, tables, scale, jt, shadow);
+                top.fill(r.0, r.1, tables, scale, jt, shadow, None);
             }
             let r = row_of(jt + 1);
-            bot.fill(r.0, r.1, tables, scale, jt + 1, shadow);
+            bot.fill(r.0, r.1, tables, scale, jt + 1, shadow, None);
             held = jt;
         }
         let (top_runs, bot_runs) = (row_of(jt).0, row_of(jt + 1).0);

@@ -137,8 +137,11 @@ impl DepthFrame {
             // Depth does not vary over the image: only the front factor remains.
             let f = self.table[0];
             for p in row.iter_mut() {
+                // Premultiplied colour never exceeds alpha (the factor can pass 1 where
+                // samples lie outside the voxel-centre box the depth is normalised over).
+                let a = p[3] as u64;
                 for c in p.iter_mut().take(3) {
-                    *c = ((*c as u64 * f as u64 + (1 << 14)) >> 15).min(ONE as u64) as u16;
+                    *c = ((*c as u64 * f as u64 + (1 << 14)) >> 15).min(a) as u16;
                 }
             }
             return;
@@ -156,8 +159,9 @@ impl DepthFrame {
             let lo = self.table[i] as u64;
             let hi = self.table[(i + 1).min(STEPS)] as u64;
             let factor = (lo * (65536 - f) + hi * f + (1 << 15)) >> 16;
+            let a = p[3] as u64;
             for c in p.iter_mut().take(3) {
-                *c = ((*c as u64 * factor + (1 << 14)) >> 15).min(ONE as u64) as u16;
+                *c = ((*c as u64 * factor + (1 << 14)) >> 15).min(a) as u16;
             }
             x += step;
         }

@@ -191,8 +191,11 @@ impl ShadeTable {
                         let hi = spec[(i + 1).min(SPEC_STEPS)];
                         let s = (lo * (16 - f) + hi * f + 8) >> 4;
                         for c in 0..3 {
-                            d[c] += fixed::mul(l.kd[c], nd);
-                            sp[c] += (s * l.ks[c] + (1 << 14)) >> 15;
+                            // u64: kd and ks may reach 16 (validation), so the products can pass u32.
+                            d[c] += ((l.kd[c] as u64 * nd as u64 + (1 << 14)) >> 15).min(1 << 20)
+                                as u32;
+                            sp[c] +=
+                                ((s as u64 * l.ks[c] as u64 + (1 << 14)) >> 15).min(1 << 20) as u32;
                         }
                     }
                 }

@@ -545,6 +545,9 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 return Err(format!("dims '{dims}': expected three numbers").into());
             };
             shearwarp_core::classify::Grid::new([nx, ny, nz], [1.0; 3])?;
+            if width == 0 || width > shearwarp_core::view::MAX_IMAGE {
+                return Err(format!("width {width}: must be 1..=16384").into());
+            }
             let ws = shearwarp_core::render::workspace_bytes([nx, ny, nz], width);
             let st = swv::stream_buffer_bytes([nx, ny, nz]);
             println!(

@@ -515,6 +515,9 @@ pub fn is_swv(path: &std::path::Path) -> bool {
 pub fn read_swv(path: &std::path::Path) -> Result<(Encoded, swv::Look), SwvError> {
     let err = |e| SwvError::Core(path.to_path_buf(), e);
     let mut r = FileReader::open(path).map_err(|e| SwvError::Io(path.to_path_buf(), e))?;
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| SwvError::Io(path.to_path_buf(), e))?
+        .len();
     let header = swv::read_header(&mut r).map_err(err)?;
     let grid = header.grid;
     let mut runs: [Vec<u8>; 3] = Default::default();
@@ -526,10 +529,16 @@ pub fn read_swv(path: &std::path::Path) -> Result<(Encoded, swv::Look), SwvError
         scans[a].push(ScanIndex::default());
         for k in 0..nk {
             let e = swv::read_entry(&mut r, &header, axis, k).map_err(err)?;
-            // Bound allocations by what the file can hold before trusting the counts.
-            if e.runs as usize > grid.voxel_count() * 2 || e.voxels as usize > grid.voxel_count() {
+            // Bound allocations by what one slice can hold, and by the file's length,
+            // before trusting the counts.
+            let [ni, _, _] = axis.permuted_dims(grid.dims);
+            let record = 8 * (nj as u64 + 1) + e.runs as u64 + 4 * e.voxels as u64;
+            if e.runs as usize > nj * (ni + 2)
+                || e.voxels as usize > ni * nj
+                || e.offset.saturating_add(record) > file_len
+            {
                 return Err(err(Error::Format {
-                    reason: "slice counts exceed the volume size",
+                    reason: "slice counts exceed what the slice or the file can hold",
                 }));
             }
             let mut s = vec![ScanIndex::default(); nj + 1];
