@@ -3,7 +3,7 @@
 #
 #   fuzz/run.sh SECONDS [TARGET...]
 #
-# Targets: swv_render, sidecar_load, tfspec. Needs the nightly toolchain and cargo-fuzz
+# Targets: swv_render, sidecar_load, tfspec, formats_load. Needs the nightly toolchain and cargo-fuzz
 # (`cargo install cargo-fuzz`). Builds with debug assertions and overflow checks, so an
 # integer overflow is a crash too. The growing corpus lives in fuzz/corpus/TARGET
 # (ignored by git; fuzz/seeds/TARGET, checked in, is read as well), crashes land in
@@ -25,7 +25,7 @@ fi
 secs="$1"
 shift
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(swv_render sidecar_load tfspec)
+[ ${#targets[@]} -gt 0 ] || targets=(swv_render sidecar_load tfspec formats_load)
 jobs="${FUZZ_JOBS:-1}"
 san="${FUZZ_SANITIZER:-none}"
 
@@ -34,6 +34,7 @@ max_len() {
     swv_render) echo 40000 ;;
     sidecar_load) echo 4096 ;;
     tfspec) echo 256 ;;
+    formats_load) echo 8192 ;;
     *) echo 4096 ;;
     esac
 }
