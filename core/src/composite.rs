@@ -717,35 +717,7 @@ fn composite_span(
         }
         // Buffer index of the left voxel: (u − n − 1) + 1.
         let bl = (u as i64 - n as i64) as usize;
-        let (tl, tr, bl_, br) = (top[bl], top[bl + 1], bot[bl], bot[bl + 1]);
-        let mut s = [0u32; 4];
-        for c in 0..4 {
-            s[c] = (w[0] * tl[c] as u32
-                + w[1] * tr[c] as u32
-                + w[2] * bl_[c] as u32
-                + w[3] * br[c] as u32
-                + (1 << 14))
-                >> 15;
-        }
-        let p = &mut pixels[u];
-        match t.mode {
-            Mode::Composite => {
-                if s[3] != 0 {
-                    let tr = ONE - p[3] as u32;
-                    for c in 0..4 {
-                        p[c] = (p[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16;
-                    }
-                    if p[3] as u32 >= t.ert {
-                        links[u] = 1;
-                    }
-                }
-            }
-            Mode::Mip => {
-                if s[0] > p[0] as u32 {
-                    *p = [s[0] as u16; 4];
-                }
-            }
-        }
+        composite_pixel(&mut pixels[u], &mut links[u], top, bot, bl, w, t);
         u += 1;
     }
 }

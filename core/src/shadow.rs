@@ -71,16 +71,7 @@ impl ShadowFrame {
 
     /// Offsets of slice `k` in the shadow buffer (as [`Factorization::slice_offset`]).
     pub fn slice_offset(&self, k: usize) -> [SliceOffset; 2] {
-        [0, 1].map(|a| {
-            let t = self.shear[a] * k as f64 + self.translate[a];
-            let mut n = libm::floor(t);
-            let mut f = libm::round((t - n) * ONE as f64) as u32;
-            if f >= ONE {
-                n += 1.0;
-                f = 0;
-            }
-            SliceOffset { n: n as i32, f }
-        })
+        [0, 1].map(|a| SliceOffset::of(self.shear[a] * k as f64 + self.translate[a]))
     }
 }
 

@@ -76,6 +76,20 @@ pub struct SliceOffset {
     pub f: u32,
 }
 
+impl SliceOffset {
+    /// Splits a translation into whole pixels and a Q15 fraction (a fraction that rounds
+    /// to one carries into the whole part).
+    pub fn of(t: f64) -> Self {
+        let mut n = libm::floor(t);
+        let mut f = libm::round((t - n) * ONE as f64) as u32;
+        if f >= ONE {
+            n += 1.0;
+            f = 0;
+        }
+        SliceOffset { n: n as i32, f }
+    }
+}
+
 /// The factored view.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Factorization {
@@ -240,16 +254,7 @@ impl Factorization {
 
     /// Offsets of slice `k` along i and j.
     pub fn slice_offset(&self, k: usize) -> [SliceOffset; 2] {
-        [0, 1].map(|a| {
-            let t = self.shear[a] * k as f64 + self.translate[a];
-            let mut n = libm::floor(t);
-            let mut f = libm::round((t - n) * ONE as f64) as u32;
-            if f >= ONE {
-                n += 1.0;
-                f = 0;
-            }
-            SliceOffset { n: n as i32, f }
-        })
+        [0, 1].map(|a| SliceOffset::of(self.shear[a] * k as f64 + self.translate[a]))
     }
 }
 
