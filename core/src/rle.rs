@@ -106,7 +106,10 @@ struct RunWriter<'a> {
 impl RunWriter<'_> {
     fn emit(&mut self, len: u8) {
         if let Some(r) = self.runs.as_deref_mut() {
-            r[self.n_runs] = len;
+            // Past the end only the count grows; `encode` reports the size needed.
+            if let Some(slot) = r.get_mut(self.n_runs) {
+                *slot = len;
+            }
         }
         self.n_runs += 1;
     }
@@ -124,7 +127,9 @@ impl RunWriter<'_> {
         self.cur_len += 1;
         if visible {
             if let Some(out) = self.voxels.as_deref_mut() {
-                out[self.n_vox] = *v;
+                if let Some(slot) = out.get_mut(self.n_vox) {
+                    *slot = *v;
+                }
             }
             self.n_vox += 1;
         }
@@ -173,7 +178,7 @@ pub fn measure(
 }
 
 /// Encodes `dense` along `axis` into caller arrays sized by [`measure`], returning the
-/// encoded axis copy.
+/// encoded axis copy (validated).
 pub fn encode<'a>(
     dense: &[Voxel],
     grid: &Grid,
@@ -183,19 +188,13 @@ pub fn encode<'a>(
     voxels: &'a mut [Voxel],
     scans: &'a mut [ScanIndex],
 ) -> Result<RleAxis<'a>, Error> {
-    let sizes = measure(dense, grid, axis, threshold)?;
-    need("runs", sizes.runs, runs.len())?;
-    need("voxels", sizes.voxels, voxels.len())?;
-    need("scans", sizes.scans, scans.len())?;
-    if sizes.runs > u32::MAX as usize || sizes.voxels > u32::MAX as usize {
-        return Err(Error::BadDimensions {
-            reason: "encoded volume exceeds 2^32 runs or voxels",
-        });
-    }
-    let runs = &mut runs[..sizes.runs];
-    let voxels = &mut voxels[..sizes.voxels];
-    let scans = &mut scans[..sizes.scans];
-    {
+    // One pass: write while counting, then check the counts (arrays sized by [`measure`]
+    // fit exactly; smaller ones give `BufferTooSmall` with the size needed).
+    need("dense voxels", grid.voxel_count(), dense.len())?;
+    let [_, nj, nk] = axis.permuted_dims(grid.dims);
+    need("scans", nj * nk + 1, scans.len())?;
+    let scans = &mut scans[..nj * nk + 1];
+    let (n_runs, n_vox) = {
         let mut w = RunWriter {
             runs: Some(&mut *runs),
             voxels: Some(&mut *voxels),
@@ -211,13 +210,25 @@ pub fn encode<'a>(
             None => {
                 w.end_scanline();
                 line += 1;
-                scans[line] = ScanIndex {
-                    run: w.n_runs as u32,
-                    voxel: w.n_vox as u32,
-                };
+                if let Some(s) = scans.get_mut(line) {
+                    *s = ScanIndex {
+                        run: w.n_runs as u32,
+                        voxel: w.n_vox as u32,
+                    };
+                }
             }
         });
+        (w.n_runs, w.n_vox)
+    };
+    if n_runs > u32::MAX as usize || n_vox > u32::MAX as usize {
+        return Err(Error::BadDimensions {
+            reason: "encoded volume exceeds 2^32 runs or voxels",
+        });
     }
+    need("runs", n_runs, runs.len())?;
+    need("voxels", n_vox, voxels.len())?;
+    let runs = &runs[..n_runs];
+    let voxels = &voxels[..n_vox];
     RleAxis::new(grid.dims, axis, runs, voxels, scans)
 }
 
