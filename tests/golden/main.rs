@@ -127,7 +127,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
         color: vec![(0.0, [1.0; 3])],
     };
     let size = 160;
-    let mut r = Renderer::new(&enc.grid, size);
+    let mut r = Renderer::new(&enc.grid);
     let mut means = Vec::new();
     for (rx, ry) in [
         (0.0, 0.0),

@@ -611,7 +611,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         width: case.size,
         height: case.size,
     };
-    let mut r = Renderer::with_threads(&enc.grid, case.size, threads);
+    let mut r = Renderer::with_threads(&enc.grid, threads);
     r.set_supersample(case.supersample).expect("supersample");
     let mut src = enc.volume().expect("volume");
     let frame = r.render(&mut src, &cam, &look).expect("render");

@@ -248,10 +248,8 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
     };
     let mut src = enc.volume()?;
     for &size in &opts.sizes {
-        let mut r1 = Renderer::with_threads(&enc.grid, size, 1);
-        let mut rn = opts
-            .threads
-            .map(|n| Renderer::with_threads(&enc.grid, size, n));
+        let mut r1 = Renderer::with_threads(&enc.grid, 1);
+        let mut rn = opts.threads.map(|n| Renderer::with_threads(&enc.grid, n));
         let mut vp_img = vec![0u8; size * size * 3];
         // Per view, the best time over the rounds.
         let n = opts.frames;

@@ -501,7 +501,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
         } => {
             let p = prepare(&volume, &opts)?;
             let mut src = p.encoded.volume()?;
-            let mut r = Renderer::with_threads(&p.encoded.grid, p.camera.width, p.threads);
+            let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_supersample(opts.supersample)?;
             let frame = r.render(&mut src, &p.camera, &p.look)?;
             scene::save_png(&output, p.camera.width, p.camera.height, &frame)
@@ -623,7 +623,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let p = prepare(&volume, &opts)?;
             let preprocess = t0.elapsed().as_secs_f64() * 1e3;
             let mut src = p.encoded.volume()?;
-            let mut r = Renderer::with_threads(&p.encoded.grid, p.camera.width, p.threads);
+            let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_supersample(opts.supersample)?;
             let mut times = Vec::with_capacity(frames);
             for i in 0..frames {

@@ -7,12 +7,12 @@ use shearwarp_core::classify::{
 };
 use shearwarp_core::composite::{self, Intermediate, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
-use shearwarp_core::render::{self, Frame, Settings, ShadowWorkspace, Workspace};
+use shearwarp_core::render::{self, Frame, Settings};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Lighting, ShadeTable};
 use shearwarp_core::shadow;
 use shearwarp_core::source::{RleVolume, SliceSource};
-use shearwarp_core::view::{self, Camera};
+use shearwarp_core::view::{self, Camera, Factorization};
 use shearwarp_core::warp::FrameBuffer;
 use shearwarp_core::Error;
 use shearwarp_core::{io, postclass, swv, warp};
@@ -164,8 +164,10 @@ struct StripSink<'a> {
 
 impl warp::PixelSink for StripSink<'_> {
     fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error> {
-        let start = (y - self.first_row) * self.width;
         let got = self.pixels.len();
+        let start = y.checked_sub(self.first_row).ok_or(Error::BadParameter {
+            reason: "warp row outside its strip",
+        })? * self.width;
         self.pixels
             .get_mut(start..start + row.len())
             .ok_or(Error::BufferTooSmall {
@@ -194,7 +196,6 @@ pub struct Renderer {
     pixels: Vec<Rgba>,
     links: Vec<u16>,
     rows: Vec<Vec<Rgba>>,
-    out_row: Vec<[u8; 4]>,
     shade: Box<ShadeTable>,
     threads: usize,
     shadow_alpha: Vec<u16>,
@@ -207,13 +208,13 @@ impl Renderer {
     /// Scanlines per work unit in threaded rendering.
     pub const BAND_ROWS: usize = 16;
 
-    /// Allocates for any view of `grid` at images up to `max_width` wide, one thread.
-    pub fn new(grid: &Grid, max_width: usize) -> Self {
-        Self::with_threads(grid, max_width, 1)
+    /// Allocates for any view of `grid` (buffers grow if a frame needs more), one thread.
+    pub fn new(grid: &Grid) -> Self {
+        Self::with_threads(grid, 1)
     }
 
     /// As [`Renderer::new`], compositing with `threads` threads (at least 1).
-    pub fn with_threads(grid: &Grid, max_width: usize, threads: usize) -> Self {
+    pub fn with_threads(grid: &Grid, threads: usize) -> Self {
         let threads = threads.max(1);
         let pix = view::max_intermediate_pixels(grid.dims);
         let m = grid.dims.iter().copied().max().unwrap_or(1);
@@ -223,7 +224,6 @@ impl Renderer {
             rows: (0..threads)
                 .map(|_| vec![[0; 4]; composite::row_buffer_len(m)])
                 .collect(),
-            out_row: vec![[0; 4]; max_width],
             shade: Box::new(ShadeTable::UNSHADED),
             threads,
             shadow_alpha: Vec::new(),
@@ -257,10 +257,20 @@ impl Renderer {
         camera: &Camera,
         look: &Look,
     ) -> Result<Vec<[u8; 4]>, Error> {
-        if self.out_row.len() < camera.width {
-            self.out_row.resize(camera.width, [0; 4]);
-        }
-        let mut frame_px = vec![[0u8; 4]; camera.width * camera.height];
+        let frame = self.composite(source, camera, look)?;
+        self.warp(&frame.view)
+    }
+
+    /// Composites every slice of `source` into the held intermediate image and returns
+    /// the frame (its `view` says how to warp it). Bands of [`Renderer::BAND_ROWS`]
+    /// scanlines go to the threads from a shared queue; with shadows the whole image is
+    /// one band on the calling thread.
+    pub fn composite<S: SliceSource + Clone + Send>(
+        &mut self,
+        source: &mut S,
+        camera: &Camera,
+        look: &Look,
+    ) -> Result<Frame, Error> {
         let settings = Settings {
             mode: look.mode,
             color: &look.color,
@@ -269,35 +279,6 @@ impl Renderer {
             depth_cue: look.depth_cue,
             shadows: look.shadows,
         };
-        let mut sink = FrameBuffer {
-            width: camera.width,
-            pixels: &mut frame_px,
-        };
-        if (self.threads == 1 || look.shadows) && self.supersample == 1 {
-            let shadow = if look.shadows {
-                let n = self.pixels.len();
-                if self.shadow_alpha.len() < n {
-                    self.shadow_alpha.resize(n, 0);
-                }
-                Some(ShadowWorkspace {
-                    alpha: &mut self.shadow_alpha,
-                    rows: &mut self.shadow_rows,
-                    shade0: &mut self.shade0,
-                })
-            } else {
-                None
-            };
-            let mut ws = Workspace {
-                pixels: &mut self.pixels,
-                links: &mut self.links,
-                rows: &mut self.rows[0],
-                out_row: &mut self.out_row,
-                shade: &mut self.shade,
-                shadow,
-            };
-            render::render(source, camera, &settings, &mut ws, &mut sink)?;
-            return Ok(frame_px);
-        }
         let grid = source.grid();
         let shade0 = look.shadows.then_some(&mut *self.shade0);
         let frame = Frame::supersampled(
@@ -316,23 +297,28 @@ impl Renderer {
             self.pixels.resize(n, [0; 4]);
             self.links.resize(n, 0);
         }
-        if look.shadows {
-            // The shadow buffer is swept with the slices: one band, one thread.
-            let sn = view::max_intermediate_pixels(grid.dims);
-            if self.shadow_alpha.len() < sn {
-                self.shadow_alpha.resize(sn, 0);
+        let need_row = composite::row_buffer_len(frame.view.dims[0]);
+        for r in &mut self.rows {
+            if r.len() < need_row {
+                r.resize(need_row, [0; 4]);
             }
+        }
+        if frame.shadow.is_some() || self.rows.len() == 1 {
+            // One thread, or shadows (the shadow buffer is swept with the slices): the
+            // whole image is one band, composited on the calling thread.
+            let shadow = match &frame.shadow {
+                Some(sf) => {
+                    let sn = sf.size[0] * sf.size[1];
+                    if self.shadow_alpha.len() < sn {
+                        self.shadow_alpha.resize(sn, 0);
+                    }
+                    Some((&mut self.shadow_alpha[..], &mut self.shadow_rows[..]))
+                }
+                None => None,
+            };
             let mut img = Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
-            render::composite_band(
-                source,
-                &frame,
-                &tables,
-                &mut img,
-                &mut self.rows[0],
-                Some((&mut self.shadow_alpha, &mut self.shadow_rows)),
-            )?;
-            warp::warp(&self.pixels[..n], &frame.view, &mut self.out_row, &mut sink)?;
-            return Ok(frame_px);
+            render::composite_band(source, &frame, &tables, &mut img, &mut self.rows[0], shadow)?;
+            return Ok(frame);
         }
         let band = Self::BAND_ROWS * iw;
         let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(
@@ -344,60 +330,78 @@ impl Renderer {
                 .rev()
                 .collect(),
         );
-        let result: Result<(), Error> = std::thread::scope(|scope| {
+        let poisoned = || Error::Source {
+            reason: "a compositing thread panicked",
+        };
+        std::thread::scope(|scope| -> Result<(), Error> {
             let handles: Vec<_> = self
                 .rows
                 .iter_mut()
                 .map(|rows| {
-                    let queue = &queue;
-                    let frame = &frame;
-                    let tables = &tables;
+                    let (queue, frame, tables) = (&queue, &frame, &tables);
                     let mut src = source.clone();
                     scope.spawn(move || -> Result<(), Error> {
                         loop {
-                            let job = queue
-                                .lock()
-                                .map_err(|_| Error::Source {
-                                    reason: "a compositing thread panicked",
-                                })?
-                                .pop();
+                            let job = queue.lock().map_err(|_| poisoned())?.pop();
                             let Some((i, p, l)) = job else { return Ok(()) };
                             let row0 = i * Self::BAND_ROWS;
-                            let rows_here = Self::BAND_ROWS.min(ih - row0);
-                            let mut img = Intermediate::band(iw, ih, row0, rows_here, p, l)?;
+                            let here = Self::BAND_ROWS.min(ih - row0);
+                            let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
                             render::composite_band(&mut src, frame, tables, &mut img, rows, None)?;
                         }
                     })
                 })
                 .collect();
             for h in handles {
-                h.join().map_err(|_| Error::Source {
-                    reason: "a compositing thread panicked",
-                })??;
+                h.join().map_err(|_| poisoned())??;
             }
             Ok(())
-        });
-        result?;
-        // The warp is split by output rows the same way.
-        let w = camera.width;
-        let strip = camera.height.div_ceil(self.threads).max(1);
-        let pixels = &self.pixels[..n];
-        let view = &frame.view;
+        })?;
+        Ok(frame)
+    }
+
+    /// Warps the intermediate image left by [`Renderer::composite`] through `view` (that
+    /// frame's view, or one whose image-to-intermediate map was changed, e.g. for zoom),
+    /// output rows split across the threads; returns `view.image` RGBA8 pixels.
+    pub fn warp(&self, view: &Factorization) -> Result<Vec<[u8; 4]>, Error> {
+        let [iw, ih] = view.intermediate;
+        let pixels = self.pixels.get(..iw * ih).ok_or(Error::BufferTooSmall {
+            what: "intermediate pixels",
+            needed: iw * ih,
+            got: self.pixels.len(),
+        })?;
+        let [w, h] = view.image;
+        let mut frame = vec![[0u8; 4]; w * h];
+        if self.rows.len() == 1 {
+            let mut row = vec![[0u8; 4]; w];
+            let mut sink = FrameBuffer {
+                width: w,
+                pixels: &mut frame,
+            };
+            warp::warp(pixels, view, &mut row, &mut sink)?;
+            return Ok(frame);
+        }
+        // Every row is computed on its own, so the result does not depend on the split.
+        let strip = h.div_ceil(self.rows.len()).max(1);
         std::thread::scope(|scope| -> Result<(), Error> {
-            let handles: Vec<_> = sink
-                .pixels
+            let handles: Vec<_> = frame
                 .chunks_mut(strip * w)
                 .enumerate()
                 .map(|(i, chunk)| {
                     scope.spawn(move || -> Result<(), Error> {
                         let mut row = vec![[0u8; 4]; w];
-                        let mut strip_sink = StripSink {
+                        let mut sink = StripSink {
                             first_row: i * strip,
                             width: w,
                             pixels: chunk,
                         };
-                        let rows = i * strip..(i + 1) * strip;
-                        warp::warp_rows(pixels, view, rows, &mut row, &mut strip_sink)
+                        warp::warp_rows(
+                            pixels,
+                            view,
+                            i * strip..(i + 1) * strip,
+                            &mut row,
+                            &mut sink,
+                        )
                     })
                 })
                 .collect();
@@ -408,7 +412,7 @@ impl Renderer {
             }
             Ok(())
         })?;
-        Ok(frame_px)
+        Ok(frame)
     }
 }
 

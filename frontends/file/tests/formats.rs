@@ -83,7 +83,7 @@ fn render(v: &RawVolume) -> Vec<[u8; 4]> {
         width: 96,
         height: 96,
     };
-    let mut r = Renderer::with_threads(&enc.grid, cam.width, 1);
+    let mut r = Renderer::with_threads(&enc.grid, 1);
     r.render(&mut enc.volume().unwrap(), &cam, &look).unwrap()
 }
 

@@ -1,5 +1,5 @@
-//! Rendering for the viewer: threaded band compositing with the core's own pieces, an
-//! interruptible slice source, and zoom/pan folded into the final warp.
+//! Rendering for the viewer: the file frontend's threaded renderer, an interruptible
+//! slice source, and zoom/pan folded into the final warp.
 //!
 //! **Zoom and pan.** The core's camera always frames the whole volume (the shorter
 //! image side spans its diagonal). The viewer keeps that camera at the window's size and
@@ -17,18 +17,12 @@
 //! that every object point lands on the same window pixel as at full resolution.
 
 use shearwarp_core::classify::Grid;
-use shearwarp_core::composite::{self, Intermediate, Rgba};
-use shearwarp_core::render::{self, Frame, Settings};
 use shearwarp_core::rle::{Axis, RleSlice};
-use shearwarp_core::shade::ShadeTable;
-use shearwarp_core::shadow;
 use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::{self, Camera, Factorization};
-use shearwarp_core::warp::{self, PixelSink};
 use shearwarp_core::Error;
-use shearwarp_file::scene::Look;
+use shearwarp_file::scene::{Look, Renderer};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
 
 /// The reason an [`Interruptible`] source gives when it stops a frame.
 pub const CANCELLED: &str = "cancelled";
@@ -136,51 +130,25 @@ impl ImageMap {
     }
 }
 
-/// One unit of threaded work: band index, its pixels and its links.
-type BandJob<'a> = (usize, &'a mut [Rgba], &'a mut [u16]);
-
-/// Reusable buffers for rendering any level of one volume with `threads` threads.
-///
-/// The intermediate image is cut into bands of [`Compositor::BAND_ROWS`] scanlines that
-/// threads take from a shared queue; each composites every slice into its band with
-/// the core's `composite_band`, as the file frontend's renderer does, so the result is
-/// the same bit for bit whatever the thread count. With shadows the core sweeps its
-/// shadow buffer along with the slices over the whole image, so such frames composite
-/// on one thread (as in the file frontend).
+/// Reusable buffers for rendering any level of one volume with `threads` threads: the
+/// file frontend's [`Renderer`] (band-parallel compositing, bit-identical whatever the
+/// thread count; shadowed frames on one thread), with the window's zoom and pan folded
+/// into its final warp.
 pub struct Compositor {
-    pixels: Vec<Rgba>,
-    links: Vec<u16>,
-    rows: Vec<Vec<Rgba>>,
-    shade: Box<ShadeTable>,
-    shadow_alpha: Vec<u16>,
-    shadow_rows: Vec<u16>,
-    shade0: Box<ShadeTable>,
+    renderer: Renderer,
 }
 
 impl Compositor {
-    /// Scanlines per work unit.
-    pub const BAND_ROWS: usize = 16;
-
     /// Allocates for any view of `grid` (and of any smaller grid), `threads` ≥ 1.
     pub fn new(grid: &Grid, threads: usize) -> Self {
-        let pix = view::max_intermediate_pixels(grid.dims);
-        let m = grid.dims.iter().copied().max().unwrap_or(1);
         Compositor {
-            pixels: vec![[0; 4]; pix],
-            links: vec![0; pix],
-            rows: (0..threads.max(1))
-                .map(|_| vec![[0; 4]; composite::row_buffer_len(m)])
-                .collect(),
-            shade: Box::new(ShadeTable::UNSHADED),
-            shadow_alpha: Vec::new(),
-            shadow_rows: vec![0; shadow::row_buffer_len(m)],
-            shade0: Box::new(ShadeTable::UNSHADED),
+            renderer: Renderer::with_threads(grid, threads),
         }
     }
 
     /// Compositing threads.
     pub fn threads(&self) -> usize {
-        self.rows.len()
+        self.renderer.threads()
     }
 
     /// Renders `source` under `camera` and `look`, placed in the window by `map`;
@@ -193,173 +161,8 @@ impl Compositor {
         map: &ImageMap,
     ) -> Result<Vec<[u8; 4]>, Error> {
         let grid = source.grid();
-        let settings = Settings {
-            mode: look.mode,
-            color: &look.color,
-            lighting: look.lighting.as_ref(),
-            ert_threshold: look.ert_threshold,
-            depth_cue: look.depth_cue,
-            shadows: look.shadows,
-        };
-        let frame = Frame::new(
-            &grid,
-            camera,
-            &settings,
-            &mut self.shade,
-            Some(&mut self.shade0),
-        )?;
-        let [iw, ih] = frame.view.intermediate;
-        let n = iw * ih;
-        if self.pixels.len() < n {
-            self.pixels.resize(n, [0; 4]);
-            self.links.resize(n, 0);
-        }
-        let need_row = composite::row_buffer_len(frame.view.dims[0]);
-        for r in &mut self.rows {
-            if r.len() < need_row {
-                r.resize(need_row, [0; 4]);
-            }
-        }
-        if let Some(sf) = &frame.shadow {
-            // The shadow buffer is swept with the slices: one band, this thread.
-            let need = sf.size[0] * sf.size[1];
-            if self.shadow_alpha.len() < need {
-                self.shadow_alpha.resize(need, 0);
-            }
-            let tables = frame.tables(&look.color, &self.shade, Some(&self.shade0));
-            let mut img = Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
-            render::composite_band(
-                &mut source.clone(),
-                &frame,
-                &tables,
-                &mut img,
-                &mut self.rows[0],
-                Some((&mut self.shadow_alpha, &mut self.shadow_rows)),
-            )?;
-            return self.warp(&grid, camera, &frame, map);
-        }
-        let tables = frame.tables(&look.color, &self.shade, None);
-        let band = Self::BAND_ROWS * iw;
-        let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(
-            self.pixels[..n]
-                .chunks_mut(band)
-                .zip(self.links[..n].chunks_mut(band))
-                .enumerate()
-                .map(|(i, (p, l))| (i, p, l))
-                .rev()
-                .collect(),
-        );
-        let poisoned = || Error::Source {
-            reason: "a compositing thread panicked",
-        };
-        std::thread::scope(|scope| -> Result<(), Error> {
-            let handles: Vec<_> = self
-                .rows
-                .iter_mut()
-                .map(|rows| {
-                    let (queue, frame, tables) = (&queue, &frame, &tables);
-                    let mut src = source.clone();
-                    scope.spawn(move || -> Result<(), Error> {
-                        loop {
-                            let job = queue.lock().map_err(|_| poisoned())?.pop();
-                            let Some((i, p, l)) = job else { return Ok(()) };
-                            let row0 = i * Self::BAND_ROWS;
-                            let here = Self::BAND_ROWS.min(ih - row0);
-                            let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
-                            render::composite_band(&mut src, frame, tables, &mut img, rows, None)?;
-                        }
-                    })
-                })
-                .collect();
-            let mut first_err = None;
-            for h in handles {
-                let r = h.join().map_err(|_| poisoned()).and_then(|r| r);
-                if let Err(e) = r {
-                    first_err.get_or_insert(e);
-                }
-            }
-            first_err.map_or(Ok(()), Err)
-        })?;
-        self.warp(&grid, camera, &frame, map)
-    }
-
-    /// Warps the composited intermediate image of `frame` into a window-sized frame.
-    fn warp(
-        &mut self,
-        grid: &Grid,
-        camera: &Camera,
-        frame: &Frame,
-        map: &ImageMap,
-    ) -> Result<Vec<[u8; 4]>, Error> {
-        let [iw, ih] = frame.view.intermediate;
-        let pixels = &self.pixels[..iw * ih];
-        let view = map.apply(grid, camera, &frame.view);
-        let (w, h) = (camera.width, camera.height);
-        let mut px = vec![[0u8; 4]; w * h];
-        // Output rows are split between the threads; every row is computed on its own,
-        // so the result does not depend on the split.
-        let strip = h.div_ceil(self.rows.len()).max(1);
-        std::thread::scope(|scope| -> Result<(), Error> {
-            let handles: Vec<_> = px
-                .chunks_mut(strip * w)
-                .enumerate()
-                .map(|(i, chunk)| {
-                    let view = &view;
-                    scope.spawn(move || -> Result<(), Error> {
-                        let mut row = vec![[0u8; 4]; w];
-                        let first = i * strip;
-                        let mut sink = Strip {
-                            first,
-                            width: w,
-                            pixels: chunk,
-                        };
-                        warp::warp_rows(
-                            pixels,
-                            view,
-                            first..(first + strip).min(h),
-                            &mut row,
-                            &mut sink,
-                        )
-                    })
-                })
-                .collect();
-            for handle in handles {
-                handle.join().map_err(|_| Error::Source {
-                    reason: "a warp thread panicked",
-                })??;
-            }
-            Ok(())
-        })?;
-        Ok(px)
-    }
-}
-
-/// Receives the rows `first..` of the final image into a slice of the frame.
-struct Strip<'a> {
-    first: usize,
-    width: usize,
-    pixels: &'a mut [[u8; 4]],
-}
-
-impl PixelSink for Strip<'_> {
-    fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error> {
-        let got = self.pixels.len();
-        let start =
-            y.checked_sub(self.first)
-                .map(|r| r * self.width)
-                .ok_or(Error::BadParameter {
-                    reason: "warp row outside its strip",
-                })?;
-        let dst = self
-            .pixels
-            .get_mut(start..start + row.len())
-            .ok_or(Error::BufferTooSmall {
-                what: "frame strip",
-                needed: start + row.len(),
-                got,
-            })?;
-        dst.copy_from_slice(row);
-        Ok(())
+        let frame = self.renderer.composite(&mut source.clone(), camera, look)?;
+        self.renderer.warp(&map.apply(&grid, camera, &frame.view))
     }
 }
 
@@ -454,7 +257,7 @@ mod tests {
             let mine = comp
                 .render(&vol, &c, &l, &ImageMap::identity(&enc.grid))
                 .unwrap();
-            let mut r = Renderer::with_threads(&enc.grid, c.width, threads);
+            let mut r = Renderer::with_threads(&enc.grid, threads);
             let theirs = r.render(&mut vol.clone(), &c, &l).unwrap();
             assert!(mine == theirs, "threads {threads}");
         }
@@ -482,7 +285,7 @@ mod tests {
                 let mine = comp
                     .render(&vol, &c, &l, &ImageMap::identity(&enc.grid))
                     .unwrap();
-                let mut r = Renderer::with_threads(&enc.grid, c.width, 2);
+                let mut r = Renderer::with_threads(&enc.grid, 2);
                 let theirs = r.render(&mut vol.clone(), &c, &l).unwrap();
                 assert!(mine == theirs, "shadows {shadows} {c:?}");
             }
