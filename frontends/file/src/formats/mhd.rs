@@ -4,10 +4,10 @@
 //! direction of index axis `a`, in ITK's LPS world) reorders the axes toward LPS.
 
 use super::{bad, check_spacing, dims_from, floats, orient_lps, read_capped, stem_of};
-use super::{to_voxels, DataType, Samples, VolumeMeta};
+use super::{read_raw_block, volume_from_bytes, DataType, VolumeMeta};
 use crate::volume::{LoadError, RawVolume};
 use flate2::bufread::ZlibDecoder;
-use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
+use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 const MAX_HEADER: u64 = 1 << 20;
@@ -128,7 +128,7 @@ pub fn load(path: &Path) -> Result<(RawVolume, VolumeMeta), LoadError> {
     let count = (dims[0] * dims[1] * dims[2]) as u64;
     let need_bytes = count * dt.bytes() as u64;
     let df = need("ElementDataFile")?;
-    let (data_path, mut reader): (std::path::PathBuf, Box<dyn BufRead>) =
+    let (data_path, reader): (std::path::PathBuf, Box<dyn BufRead>) =
         if df.eq_ignore_ascii_case("LOCAL") {
             (path.to_path_buf(), Box::new(r))
         } else {
@@ -146,57 +146,14 @@ pub fn load(path: &Path) -> Result<(RawVolume, VolumeMeta), LoadError> {
             let f = std::fs::File::open(&p).map_err(|e| io(&p, e))?;
             (p, Box::new(BufReader::new(f)))
         };
-    let mut data = if compressed {
+    let data = if compressed {
         read_capped(&data_path, ZlibDecoder::new(reader), need_bytes)?
-    } else if header_size == -1 {
-        drop(reader);
-        let mut f = std::fs::File::open(&data_path).map_err(|e| io(&data_path, e))?;
-        let len = f.metadata().map_err(|e| io(&data_path, e))?.len();
-        if len < need_bytes {
-            return Err(bad(
-                &data_path,
-                format!("truncated voxel data: expected {need_bytes} bytes, file has {len}"),
-            ));
-        }
-        f.seek(SeekFrom::Start(len - need_bytes))
-            .map_err(|e| io(&data_path, e))?;
-        read_capped(&data_path, f, need_bytes)?
     } else {
-        std::io::copy(
-            &mut (&mut reader).take(header_size.max(0) as u64),
-            &mut std::io::sink(),
-        )
-        .map_err(|e| io(&data_path, e))?;
-        read_capped(&data_path, reader, need_bytes)?
+        read_raw_block(&data_path, reader, header_size, need_bytes)?
     };
-    data.truncate(need_bytes as usize);
-    if (data.len() as u64) < need_bytes {
-        return Err(bad(
-            &data_path,
-            format!(
-                "truncated voxel data: expected {need_bytes} bytes for {}×{}×{} {}, found {}",
-                dims[0],
-                dims[1],
-                dims[2],
-                dt.name(),
-                data.len()
-            ),
-        ));
-    }
-    let samples = Samples {
-        bytes: &data,
-        dtype: dt,
-        big_endian: big,
-        rescale: vec![(1.0, 0.0)],
-        raw_map: None,
-    };
-    let (voxels, slope, intercept) = to_voxels(&data_path, dims, &samples)?;
-    let vol = RawVolume {
-        name: stem_of(path, &[".mhd", ".mha"]),
-        dims,
-        spacing,
-        voxels,
-    };
+    let name = stem_of(path, &[".mhd", ".mha"]);
+    let (vol, slope, intercept) =
+        volume_from_bytes(&data_path, data, need_bytes, dims, dt, big, spacing, name)?;
     let (vol, orientation) = match dirs {
         Some(d) => orient_lps(vol, d),
         None => (vol, String::new()),

@@ -300,6 +300,88 @@ pub(crate) fn read_capped(path: &Path, r: impl Read, cap: u64) -> Result<Vec<u8>
     Ok(v)
 }
 
+/// Reads `need_bytes` of uncompressed voxel data from `reader` after skipping `skip`
+/// bytes, or, with `skip == -1` (NRRD `byte skip: -1`, MetaImage `HeaderSize = -1`), the
+/// last `need_bytes` bytes of the file at `data_path`.
+pub(crate) fn read_raw_block(
+    data_path: &Path,
+    mut reader: impl Read,
+    skip: i64,
+    need_bytes: u64,
+) -> Result<Vec<u8>, LoadError> {
+    let io = |source| LoadError::Io {
+        path: data_path.to_path_buf(),
+        source,
+    };
+    if skip == -1 {
+        drop(reader);
+        let mut f = std::fs::File::open(data_path).map_err(io)?;
+        let len = f.metadata().map_err(io)?.len();
+        if len < need_bytes {
+            return Err(bad(
+                data_path,
+                format!("truncated voxel data: expected {need_bytes} bytes, file has {len}"),
+            ));
+        }
+        std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(len - need_bytes)).map_err(io)?;
+        read_capped(data_path, f, need_bytes)
+    } else {
+        std::io::copy(
+            &mut (&mut reader).take(skip.max(0) as u64),
+            &mut std::io::sink(),
+        )
+        .map_err(io)?;
+        read_capped(data_path, reader, need_bytes)
+    }
+}
+
+/// Turns `data` (at least `need_bytes` long, else a "truncated" error) of type `dt` into
+/// a volume; returns it with the slope and intercept back to file values.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn volume_from_bytes(
+    data_path: &Path,
+    mut data: Vec<u8>,
+    need_bytes: u64,
+    dims: [usize; 3],
+    dt: DataType,
+    big_endian: bool,
+    spacing: [f64; 3],
+    name: String,
+) -> Result<(RawVolume, f64, f64), LoadError> {
+    data.truncate(need_bytes as usize);
+    if (data.len() as u64) < need_bytes {
+        return Err(bad(
+            data_path,
+            format!(
+                "truncated voxel data: expected {need_bytes} bytes for {}×{}×{} {}, found {}",
+                dims[0],
+                dims[1],
+                dims[2],
+                dt.name(),
+                data.len()
+            ),
+        ));
+    }
+    let samples = Samples {
+        bytes: &data,
+        dtype: dt,
+        big_endian,
+        rescale: vec![(1.0, 0.0)],
+        raw_map: None,
+    };
+    let (voxels, slope, intercept) = to_voxels(data_path, dims, &samples)?;
+    Ok((
+        RawVolume {
+            name,
+            dims,
+            spacing,
+            voxels,
+        },
+        slope,
+        intercept,
+    ))
+}
+
 /// Permutes/flips axes so that stored axes point toward LPS as nearly as possible.
 ///
 /// `dirs[a]` is the direction (in LPS) of index axis `a`. Returns the reordered volume

@@ -3,11 +3,11 @@
 //! dropped). Spacing comes from `spacings`, or from the lengths of `space directions`;
 //! with `space directions` in a `space` of LPS or RAS the axes are reordered toward LPS.
 
-use super::{bad, check_spacing, dims_from, orient_lps, read_capped, stem_of, to_voxels};
-use super::{DataType, Samples, VolumeMeta};
+use super::{bad, check_spacing, dims_from, orient_lps, read_capped, read_raw_block, stem_of};
+use super::{volume_from_bytes, DataType, VolumeMeta};
 use crate::volume::{LoadError, RawVolume};
 use flate2::bufread::MultiGzDecoder;
-use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
+use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 const MAX_HEADER: u64 = 1 << 20;
@@ -215,63 +215,19 @@ pub fn load(path: &Path) -> Result<(RawVolume, VolumeMeta), LoadError> {
             .read_until(b'\n', &mut l)
             .map_err(|e| io(&data_path, e))?;
     }
-    let mut data = if gzip {
+    let data = if gzip {
         let d = MultiGzDecoder::new(reader);
         let mut v = read_capped(&data_path, d, need_bytes + byte_skip.max(0) as u64)?;
         if byte_skip > 0 {
             v.drain(..(byte_skip as usize).min(v.len()));
         }
         v
-    } else if byte_skip == -1 {
-        // Data is at the end of the file.
-        drop(reader);
-        let mut f = std::fs::File::open(&data_path).map_err(|e| io(&data_path, e))?;
-        let len = f.metadata().map_err(|e| io(&data_path, e))?.len();
-        if len < need_bytes {
-            return Err(bad(
-                &data_path,
-                format!("truncated voxel data: expected {need_bytes} bytes, file has {len}"),
-            ));
-        }
-        f.seek(SeekFrom::Start(len - need_bytes))
-            .map_err(|e| io(&data_path, e))?;
-        read_capped(&data_path, f, need_bytes)?
     } else {
-        std::io::copy(
-            &mut (&mut reader).take(byte_skip.max(0) as u64),
-            &mut std::io::sink(),
-        )
-        .map_err(|e| io(&data_path, e))?;
-        read_capped(&data_path, reader, need_bytes)?
+        read_raw_block(&data_path, reader, byte_skip, need_bytes)?
     };
-    data.truncate(need_bytes as usize);
-    if (data.len() as u64) < need_bytes {
-        return Err(bad(
-            &data_path,
-            format!(
-                "truncated voxel data: expected {need_bytes} bytes for {}×{}×{} {}, found {}",
-                dims[0],
-                dims[1],
-                dims[2],
-                dt.name(),
-                data.len()
-            ),
-        ));
-    }
-    let samples = Samples {
-        bytes: &data,
-        dtype: dt,
-        big_endian: big,
-        rescale: vec![(1.0, 0.0)],
-        raw_map: None,
-    };
-    let (voxels, slope, intercept) = to_voxels(&data_path, dims, &samples)?;
-    let vol = RawVolume {
-        name: stem_of(path, &[".nrrd", ".nhdr"]),
-        dims,
-        spacing,
-        voxels,
-    };
+    let name = stem_of(path, &[".nrrd", ".nhdr"]);
+    let (vol, slope, intercept) =
+        volume_from_bytes(&data_path, data, need_bytes, dims, dt, big, spacing, name)?;
     let (vol, orientation) = match lps_dirs {
         Some(d) => orient_lps(vol, d),
         None => (vol, String::new()),
