@@ -213,7 +213,24 @@ struct Row<'b> {
     dirty: (usize, usize),
 }
 
-impl Row<'_> {
+impl<'b> Row<'b> {
+    /// The two row buffers for slices `ni` wide, cleared (`rows` holds at least
+    /// [`row_buffer_len`]`(ni)` entries).
+    fn pair(rows: &'b mut [Rgba], ni: usize) -> (Row<'b>, Row<'b>) {
+        let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
+        let mut top = Row {
+            buf: r0,
+            dirty: (0, ni + 2),
+        };
+        let mut bot = Row {
+            buf: r1,
+            dirty: (0, ni + 2),
+        };
+        top.clear();
+        bot.clear();
+        (top, bot)
+    }
+
     fn clear(&mut self) {
         let (a, b) = self.dirty;
         if a < b {
@@ -445,17 +462,7 @@ pub fn composite_slice(
         return composite_slice_supersampled(img, slice, k, view, tables, rows, shadow);
     }
     let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
-    let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
-    let mut top = Row {
-        buf: r0,
-        dirty: (0, ni + 2),
-    };
-    let mut bot = Row {
-        buf: r1,
-        dirty: (0, ni + 2),
-    };
-    top.clear();
-    bot.clear();
+    let (mut top, mut bot) = Row::pair(rows, ni);
     // Weights: f weighs the left column / top row.
     let w = fixed::bilinear_weights(ou.f, ov.f);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
@@ -565,17 +572,7 @@ fn composite_slice_supersampled(
     // Slice translation T in Q15.
     let tu = ou.n as i64 * one + ou.f as i64;
     let tv = ov.n as i64 * one + ov.f as i64;
-    let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
-    let mut top = Row {
-        buf: r0,
-        dirty: (0, ni + 2),
-    };
-    let mut bot = Row {
-        buf: r1,
-        dirty: (0, ni + 2),
-    };
-    top.clear();
-    bot.clear();
+    let (mut top, mut bot) = Row::pair(rows, ni);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let width = img.width;
     let empty: (&[u8], &[Voxel]) = (&[], &[]);
