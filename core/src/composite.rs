@@ -55,6 +55,8 @@ pub struct SliceTables<'a> {
     /// With shadows: the shading of the first light alone (then `shade` holds the
     /// ambient term and the other lights).
     pub shade0: Option<&'a ShadeTable>,
+    /// Perspective views: the per-ray opacity-correction gains.
+    pub ray_gain: Option<&'a crate::perspective::RayGain>,
 }
 
 /// The intermediate image, or a band of its scanlines: pixels plus the opaque-pixel
@@ -156,9 +158,18 @@ impl<'a> Intermediate<'a> {
 }
 
 /// Row-buffer entries the compositor needs for slices `ni` voxels wide (two rows with a
-/// guard entry on each side).
+/// guard entry on each side) in parallel projection.
 pub const fn row_buffer_len(ni: usize) -> usize {
     2 * (ni + 2)
+}
+
+/// Row-buffer entries [`composite_slice`] needs for `view` (perspective views need a
+/// ring of intermediate-width rows, see [`crate::perspective::row_buffer_len`]).
+pub fn rows_needed(view: &Factorization) -> usize {
+    match view.perspective {
+        Some(_) => crate::perspective::row_buffer_len(view),
+        None => row_buffer_len(view.dims[0]),
+    }
 }
 
 /// Non-transparent spans `[start, end)` of one scanline's runs; adjacent runs split at 255
@@ -208,12 +219,20 @@ impl Iterator for Spans<'_> {
 
 /// A shaded voxel row: premultiplied colours at buffer index `i + 1` for voxel `i`, zero
 /// elsewhere, plus the range that holds non-zero entries (to clear it cheaply).
-struct Row<'b> {
-    buf: &'b mut [Rgba],
+pub(crate) struct Row<'b> {
+    pub(crate) buf: &'b mut [Rgba],
     dirty: (usize, usize),
 }
 
 impl<'b> Row<'b> {
+    /// A row over `buf` (at least `ni + 2` entries for slices `ni` wide), cleared.
+    pub(crate) fn new(buf: &'b mut [Rgba]) -> Self {
+        let n = buf.len();
+        let mut r = Row { buf, dirty: (0, n) };
+        r.clear();
+        r
+    }
+
     /// The two row buffers for slices `ni` wide, cleared (`rows` holds at least
     /// [`row_buffer_len`]`(ni)` entries).
     fn pair(rows: &'b mut [Rgba], ni: usize) -> (Row<'b>, Row<'b>) {
@@ -231,7 +250,7 @@ impl<'b> Row<'b> {
         (top, bot)
     }
 
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         let (a, b) = self.dirty;
         if a < b {
             self.buf[a..b].fill([0; 4]);
@@ -240,13 +259,11 @@ impl<'b> Row<'b> {
     }
 
     /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor. `shadow`
-    /// gives the first light's transmittance for voxels of row `j`.
-    /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor. `shadow`
     /// gives the first light's transmittance for voxels of row `j`. With `needed`, only
     /// voxels some non-opaque pixel will read are shaded (the others stay zero, and only
     /// opaque pixels, which are never composited again, would read them).
     #[allow(clippy::too_many_arguments)]
-    fn fill(
+    pub(crate) fn fill(
         &mut self,
         runs: &[u8],
         voxels: &[Voxel],
@@ -456,6 +473,14 @@ pub fn composite_slice(
         return Err(Error::MalformedRle {
             reason: "slice dimensions do not match the view",
         });
+    }
+    if view.perspective.is_some() {
+        if shadow.is_some() {
+            return Err(Error::BadParameter {
+                reason: "shadows are not available in perspective views",
+            });
+        }
+        return crate::perspective::composite_slice(img, slice, k, view, tables, rows);
     }
     need("row buffer", row_buffer_len(ni), rows.len())?;
     if view.supersample > 1 {

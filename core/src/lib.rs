@@ -32,6 +32,7 @@ pub mod error;
 pub mod fixed;
 pub mod io;
 pub mod normal;
+pub mod perspective;
 pub mod postclass;
 pub mod render;
 pub mod rle;

@@ -10,6 +10,7 @@ use crate::composite::{self, Intermediate, Mode, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, Error};
 use crate::fixed;
+use crate::perspective::RayGain;
 use crate::shade::{Lighting, ShadeTable};
 use crate::shadow::{self, ShadowFrame, ShadowLookup};
 use crate::source::SliceSource;
@@ -123,6 +124,8 @@ pub struct Frame {
     pub depth: Option<DepthFrame>,
     /// The light's factorization when shadows are on.
     pub shadow: Option<ShadowFrame>,
+    /// Perspective views: the per-ray opacity-correction gains.
+    pub ray_gain: Option<RayGain>,
 }
 
 impl Frame {
@@ -149,6 +152,43 @@ impl Frame {
         s: usize,
     ) -> Result<Self, Error> {
         let view = Factorization::new(grid, camera)?.with_supersampling(s)?;
+        Self::with_view(grid, view, settings, shade, shade0)
+    }
+
+    /// As [`Frame::new`] for a perspective camera with a `fov_deg` field of view
+    /// ([`Factorization::perspective`]). Depth cueing and shadows are not available in
+    /// perspective.
+    pub fn perspective(
+        grid: &crate::classify::Grid,
+        camera: &Camera,
+        fov_deg: f64,
+        settings: &Settings<'_>,
+        shade: &mut ShadeTable,
+    ) -> Result<Self, Error> {
+        let view = Factorization::perspective(grid, camera, fov_deg)?;
+        Self::with_view(grid, view, settings, shade, None)
+    }
+
+    /// Builds the per-frame tables for an already factored `view` of `grid`.
+    pub fn with_view(
+        grid: &crate::classify::Grid,
+        view: Factorization,
+        settings: &Settings<'_>,
+        shade: &mut ShadeTable,
+        shade0: Option<&mut ShadeTable>,
+    ) -> Result<Self, Error> {
+        if view.perspective.is_some() {
+            if settings.shadows {
+                return Err(Error::BadParameter {
+                    reason: "shadows are not available in perspective views",
+                });
+            }
+            if settings.depth_cue.is_some() {
+                return Err(Error::BadParameter {
+                    reason: "depth cueing is not available in perspective views",
+                });
+            }
+        }
         if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
             return Err(Error::BadParameter {
                 reason: "early-ray-termination threshold must be in (0, 1]",
@@ -196,6 +236,7 @@ impl Frame {
             _ => None,
         };
         Ok(Frame {
+            ray_gain: view.perspective.as_ref().map(RayGain::new),
             shadow,
             depth,
             opacity: crate::classify::opacity_correction(view.step_ratio),
@@ -221,6 +262,7 @@ impl Frame {
             mode: self.mode,
             ert: self.ert,
             depth: self.depth.as_ref(),
+            ray_gain: self.ray_gain.as_ref(),
         }
     }
 }
@@ -238,11 +280,7 @@ pub fn composite_band<S: SliceSource>(
     mut shadow: Option<(&mut [u16], &mut [u16])>,
 ) -> Result<(), Error> {
     let view = &frame.view;
-    need(
-        "row buffer",
-        composite::row_buffer_len(view.dims[0]),
-        rows.len(),
-    )?;
+    need("row buffer", composite::rows_needed(view), rows.len())?;
     if img.width() != view.intermediate[0] || img.height() != view.intermediate[1] {
         return Err(Error::BadParameter {
             reason: "intermediate image does not match the frame",
@@ -531,6 +569,7 @@ mod tests {
                     },
                     depth: None,
                     shade0: None,
+                    ray_gain: None,
                 };
                 let [iw, ih] = view.intermediate;
                 let mut p2 = vec![[0u16; 4]; iw * ih];

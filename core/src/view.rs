@@ -107,9 +107,11 @@ pub struct Factorization {
     pub intermediate: [usize; 2],
     /// Final image size `(width, height)`.
     pub image: [usize; 2],
-    /// Affine map from final-image coordinates (pixel centres at `+0.5`) to intermediate
-    /// coordinates: `u = m[0]·(x, y, 1)`, `v = m[1]·(x, y, 1)`.
-    pub image_to_intermediate: [[f64; 3]; 2],
+    /// Map from final-image coordinates (pixel centres at `+0.5`) to intermediate
+    /// coordinates, homogeneous: `(U, V, W) = m·(x, y, 1)`, `u = U/W`, `v = V/W`. For
+    /// parallel projection the last row is `(0, 0, 1)` (an affine map); for perspective
+    /// it is projective, normalised so that `W > 0` exactly on rays that reach the slices.
+    pub image_to_intermediate: [[f64; 3]; 3],
     /// Object-to-camera rotation (for shading).
     pub rotation: [[f64; 3]; 3],
     /// Ray length between adjacent slices divided by the smallest spacing: the exponent
@@ -117,25 +119,51 @@ pub struct Factorization {
     pub step_ratio: f64,
     /// Intermediate pixels per voxel along i and j (1: Lacroute's voxel-rate image).
     pub supersample: usize,
+    /// The perspective part of the factorization, `None` for parallel projection.
+    pub perspective: Option<Perspective>,
+}
+
+/// What a perspective factorization adds (Lacroute 1995, §3.3 and App. A.3): every slice
+/// is translated and scaled uniformly about the eye's foot point, so that rays from the
+/// eye become perpendicular to the slices.
+///
+/// In permuted index coordinates, voxel `(i, j)` of slice `k` lands at intermediate
+/// `u = σ(k)·(i − e_i) + e_i + t_i` (and likewise `v`), where `σ(k) = (k_f − e_k)/(k −
+/// e_k)` is 1 on the front slice `k_f` and shrinks behind it: the intermediate image is
+/// the front slice's plane, seen from the eye.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Perspective {
+    /// The eye in permuted index coordinates `(e_i, e_j, e_k)`.
+    pub eye: [f64; 3],
+    /// Front slice (scale 1).
+    pub front: usize,
+    /// Scale of the farthest slice, in `[1/MAX_DECIMATION, 1]`.
+    pub min_scale: f64,
+    /// Squared opacity-correction exponent of the ray through intermediate `(u, v)`:
+    /// `r² = c + a·(u − u₀)² + b·(v − v₀)²`, stored as `[c, a, u₀, b, v₀]`. The step
+    /// between slices along a ray from the eye is constant, so one exponent per ray.
+    pub ratio_sq: [f64; 5],
+    /// Smallest and largest `r²` over the intermediate image.
+    pub ratio_sq_range: [f64; 2],
+}
+
+/// Largest accepted ratio between the front and the back slice's scale in perspective:
+/// it bounds the filter footprint (and the row buffers) of the farthest slice.
+pub const MAX_DECIMATION: usize = 8;
+
+/// One slice's place in a perspective intermediate image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SliceScale {
+    /// Scale `σ(k)` in `(0, 1]`.
+    pub scale: f64,
+    /// Intermediate position of voxel `(0, 0)`: `(1 − σ)·e + t`.
+    pub origin: [f64; 2],
 }
 
 impl Factorization {
     /// Factors the view of `grid` through `camera`.
     pub fn new(grid: &Grid, camera: &Camera) -> Result<Self, Error> {
-        if camera.width == 0
-            || camera.height == 0
-            || camera.width > MAX_IMAGE
-            || camera.height > MAX_IMAGE
-        {
-            return Err(Error::BadParameter {
-                reason: "image size must be 1..=16384 on each side",
-            });
-        }
-        if !(camera.rotate_x.is_finite() && camera.rotate_y.is_finite()) {
-            return Err(Error::BadParameter {
-                reason: "rotation angles must be finite",
-            });
-        }
+        check_camera(camera)?;
         let rot = rotation(camera.rotate_x, camera.rotate_y);
         // Ray direction toward the scene: object space −(third row of R), in index units.
         let dir = [
@@ -200,7 +228,7 @@ impl Factorization {
                 t - inv[r][0] * origin[0] - inv[r][1] * origin[1],
             ]
         };
-        let image_to_intermediate = [row(0, translate[0]), row(1, translate[1])];
+        let image_to_intermediate = [row(0, translate[0]), row(1, translate[1]), [0.0, 0.0, 1.0]];
 
         let sp = [grid.spacing[p[0]], grid.spacing[p[1]], grid.spacing[p[2]]];
         let step = [shear[0] * sp[0], shear[1] * sp[1], sp[2]];
@@ -217,6 +245,188 @@ impl Factorization {
             rotation: rot,
             step_ratio: step_len / grid.min_spacing(),
             supersample: 1,
+            perspective: None,
+        })
+    }
+
+    /// Factors a perspective view (Lacroute 1995, §3.3): the camera of the contract,
+    /// moved from infinity to the distance on +Z at which the volume's bounding sphere
+    /// just fills `fov_deg` across the shorter image side.
+    ///
+    /// The principal axis is chosen among the axes whose slab of slices does not contain
+    /// the eye, as the one whose rays to the 8 corners are least oblique to it (the thesis
+    /// splits the volume when corners disagree; here oblique rays are resampled along the
+    /// slices more coarsely instead). Views whose farthest slice would be scaled below
+    /// `1/MAX_DECIMATION` are refused.
+    pub fn perspective(grid: &Grid, camera: &Camera, fov_deg: f64) -> Result<Self, Error> {
+        check_camera(camera)?;
+        if !(fov_deg.is_finite() && (1.0..=150.0).contains(&fov_deg)) {
+            return Err(Error::BadParameter {
+                reason: "field of view must be 1..=150 degrees",
+            });
+        }
+        let rot = rotation(camera.rotate_x, camera.rotate_y);
+        let half = fov_deg.to_radians() * 0.5;
+        let radius = grid.diagonal() * 0.5;
+        let dist = radius / libm::sin(half);
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let focal = 0.5 * w.min(h) / libm::tan(half);
+        let n = grid.dims.map(|d| (d - 1) as f64);
+        // Eye: camera (0, 0, D) in object space is D·(third row of R); then index units.
+        let eye_idx: [f64; 3] =
+            core::array::from_fn(|a| dist * rot[2][a] / grid.spacing[a] + n[a] * 0.5);
+        let mut best: Option<(Axis, f64)> = None;
+        for axis in [Axis::Z, Axis::Y, Axis::X] {
+            let p = axis.permutation();
+            let ek = eye_idx[p[2]];
+            if ek > -1e-9 && ek < n[p[2]] + 1e-9 {
+                continue;
+            }
+            let mut worst = f64::INFINITY;
+            for c in 0..8 {
+                let corner: [f64; 3] =
+                    core::array::from_fn(|a| if c >> a & 1 == 1 { n[a] } else { 0.0 });
+                let d: [f64; 3] = core::array::from_fn(|a| libm::fabs(corner[a] - eye_idx[a]));
+                let side = d[p[0]].max(d[p[1]]).max(1e-12);
+                worst = worst.min(d[p[2]] / side);
+            }
+            if best.is_none_or(|(_, b)| worst > b) {
+                best = Some((axis, worst));
+            }
+        }
+        let Some((axis, _)) = best else {
+            return Err(Error::BadParameter {
+                reason: "the eye lies inside the volume",
+            });
+        };
+        let p = axis.permutation();
+        let dims = axis.permuted_dims(grid.dims);
+        let [ni, nj, nk] = dims;
+        let e = [eye_idx[p[0]], eye_idx[p[1]], eye_idx[p[2]]];
+        let k_increasing = e[2] < 0.0;
+        let front = if k_increasing { 0 } else { nk - 1 };
+        let back = if k_increasing { nk - 1 } else { 0 };
+        let dk = front as f64 - e[2];
+        let min_scale = dk / (back as f64 - e[2]);
+        if !(min_scale.is_finite() && min_scale * MAX_DECIMATION as f64 >= 1.0) {
+            return Err(Error::BadParameter {
+                reason: "perspective too strong: the far side of the volume would be over 8 times smaller than the near side (narrow the field of view)",
+            });
+        }
+        // Bounding box of the front and back slices' voxel centres, with one pixel of
+        // margin for the reconstruction filter on each side.
+        let span = |a: usize, last: usize| -> (f64, f64) {
+            let mut lo = f64::INFINITY;
+            let mut hi = f64::NEG_INFINITY;
+            for s in [1.0, min_scale] {
+                for x in [0.0, last as f64] {
+                    let u = s * (x - e[a]) + e[a];
+                    lo = lo.min(u);
+                    hi = hi.max(u);
+                }
+            }
+            (lo, hi)
+        };
+        let (ulo, uhi) = span(0, ni - 1);
+        let (vlo, vhi) = span(1, nj - 1);
+        let translate = [1.0 - ulo, 1.0 - vlo];
+        let iw = libm::floor(uhi + translate[0]) + 2.0;
+        let ih = libm::floor(vhi + translate[1]) + 2.0;
+        if !(iw < u16::MAX as f64 && ih < u16::MAX as f64) {
+            return Err(Error::BadParameter {
+                reason: "perspective view needs an intermediate image over 65534 pixels wide",
+            });
+        }
+        let intermediate = [iw as usize, ih as usize];
+
+        // Image → intermediate: the ray through image point (x, y) has camera direction
+        // ((x − w/2)/F, −(y − h/2)/F, −1), object direction Rᵀ·that, index direction
+        // divided by the spacing; it meets the front slice at u = e_i + t_i + dk·d_i/d_k.
+        let cam_rows = [
+            [1.0 / focal, 0.0, -0.5 * w / focal],
+            [0.0, -1.0 / focal, 0.5 * h / focal],
+            [0.0, 0.0, -1.0],
+        ];
+        let dir_row = |a: usize| -> [f64; 3] {
+            let o = p[a];
+            core::array::from_fn(|c| {
+                (rot[0][o] * cam_rows[0][c]
+                    + rot[1][o] * cam_rows[1][c]
+                    + rot[2][o] * cam_rows[2][c])
+                    / grid.spacing[o]
+            })
+        };
+        let (di, dj, dkr) = (dir_row(0), dir_row(1), dir_row(2));
+        let mut m = [
+            core::array::from_fn(|c| (e[0] + translate[0]) * dkr[c] + dk * di[c]),
+            core::array::from_fn(|c| (e[1] + translate[1]) * dkr[c] + dk * dj[c]),
+            dkr,
+        ];
+        // Rays reach the slices when d_k has the sign of dk; scale so that W = 1 at the
+        // image centre (the central ray always reaches them).
+        let wc = dkr[0] * 0.5 * w + dkr[1] * 0.5 * h + dkr[2];
+        if !(wc.is_finite() && libm::fabs(wc) > 1e-12 && wc * dk > 0.0) {
+            return Err(Error::BadParameter {
+                reason: "degenerate perspective view",
+            });
+        }
+        for row in m.iter_mut() {
+            for c in row.iter_mut() {
+                *c /= wc;
+            }
+        }
+
+        // Opacity correction: the step between slices along the ray through (u, v) is
+        // the index vector (du/dk, dv/dk, 1) with du = u − t_i − e_i, in physical units.
+        let sp = [grid.spacing[p[0]], grid.spacing[p[1]], grid.spacing[p[2]]];
+        let s0 = grid.min_spacing();
+        let ratio_sq = [
+            (sp[2] / s0) * (sp[2] / s0),
+            (sp[0] / (dk * s0)) * (sp[0] / (dk * s0)),
+            translate[0] + e[0],
+            (sp[1] / (dk * s0)) * (sp[1] / (dk * s0)),
+            translate[1] + e[1],
+        ];
+        let r2 = |u: f64, v: f64| {
+            ratio_sq[0]
+                + ratio_sq[1] * (u - ratio_sq[2]) * (u - ratio_sq[2])
+                + ratio_sq[3] * (v - ratio_sq[4]) * (v - ratio_sq[4])
+        };
+        let (uw, vh) = ((iw - 1.0), (ih - 1.0));
+        let r2_min = r2(ratio_sq[2].clamp(0.0, uw), ratio_sq[4].clamp(0.0, vh));
+        let r2_max = [(0.0, 0.0), (uw, 0.0), (0.0, vh), (uw, vh)]
+            .iter()
+            .map(|&(u, v)| r2(u, v))
+            .fold(r2_min, f64::max);
+        Ok(Factorization {
+            axis,
+            dims,
+            shear: [0.0; 2],
+            translate,
+            k_increasing,
+            intermediate,
+            image: [camera.width, camera.height],
+            image_to_intermediate: m,
+            rotation: rot,
+            step_ratio: libm::sqrt(r2_min),
+            supersample: 1,
+            perspective: Some(Perspective {
+                eye: e,
+                front,
+                min_scale,
+                ratio_sq,
+                ratio_sq_range: [r2_min, r2_max],
+            }),
+        })
+    }
+
+    /// Scale and position of slice `k` in a perspective view (`None` for parallel).
+    pub fn slice_scale(&self, k: usize) -> Option<SliceScale> {
+        let p = self.perspective.as_ref()?;
+        let scale = (p.front as f64 - p.eye[2]) / (k as f64 - p.eye[2]);
+        Some(SliceScale {
+            scale,
+            origin: [0, 1].map(|a| (1.0 - scale) * p.eye[a] + self.translate[a]),
         })
     }
 
@@ -233,8 +443,13 @@ impl Factorization {
         if s == 1 {
             return Ok(self);
         }
+        if self.perspective.is_some() {
+            return Err(Error::BadParameter {
+                reason: "supersampling applies to parallel projection only",
+            });
+        }
         self.intermediate = self.intermediate.map(|n| s * n + 1);
-        for row in self.image_to_intermediate.iter_mut() {
+        for row in self.image_to_intermediate.iter_mut().take(2) {
             for c in row.iter_mut() {
                 *c *= s as f64;
             }
@@ -256,6 +471,24 @@ impl Factorization {
     pub fn slice_offset(&self, k: usize) -> [SliceOffset; 2] {
         [0, 1].map(|a| SliceOffset::of(self.shear[a] * k as f64 + self.translate[a]))
     }
+}
+
+fn check_camera(camera: &Camera) -> Result<(), Error> {
+    if camera.width == 0
+        || camera.height == 0
+        || camera.width > MAX_IMAGE
+        || camera.height > MAX_IMAGE
+    {
+        return Err(Error::BadParameter {
+            reason: "image size must be 1..=16384 on each side",
+        });
+    }
+    if !(camera.rotate_x.is_finite() && camera.rotate_y.is_finite()) {
+        return Err(Error::BadParameter {
+            reason: "rotation angles must be finite",
+        });
+    }
+    Ok(())
 }
 
 /// Upper bound of the intermediate image's pixel count over all views of `dims`, for
@@ -361,5 +594,95 @@ mod tests {
         assert_eq!([r[0][0], r[1][0], r[2][0]], [0.0, 0.0, -1.0]);
         let r = rotation(90.0, 0.0);
         assert_eq!([r[0][1], r[1][1], r[2][1]], [0.0, 0.0, 1.0]);
+    }
+
+    /// Projects object index point `idx` with the perspective camera directly.
+    fn project(g: &Grid, c: &Camera, fov: f64, idx: [f64; 3]) -> [f64; 2] {
+        let r = rotation(c.rotate_x, c.rotate_y);
+        let half = fov.to_radians() / 2.0;
+        let dist = g.diagonal() / 2.0 / libm::sin(half);
+        let focal = 0.5 * (c.width.min(c.height) as f64) / libm::tan(half);
+        let p: [f64; 3] =
+            core::array::from_fn(|a| (idx[a] - (g.dims[a] - 1) as f64 * 0.5) * g.spacing[a]);
+        let q: [f64; 3] =
+            core::array::from_fn(|r_| r[r_][0] * p[0] + r[r_][1] * p[1] + r[r_][2] * p[2]);
+        let z = dist - q[2];
+        [
+            c.width as f64 * 0.5 + focal * q[0] / z,
+            c.height as f64 * 0.5 - focal * q[1] / z,
+        ]
+    }
+
+    #[test]
+    fn perspective_shear_scale_and_warp_reproduce_the_camera() {
+        let g = Grid::new([17, 23, 31], [1.0, 0.7, 1.6]).unwrap();
+        for (rx, ry) in [
+            (0.0, 0.0),
+            (30.0, 45.0),
+            (-70.0, 120.0),
+            (90.0, 0.0),
+            (10.0, -95.0),
+        ] {
+            for fov in [10.0, 45.0, 90.0] {
+                let c = cam(rx, ry);
+                let f = Factorization::perspective(&g, &c, fov).unwrap();
+                let p = f.perspective.unwrap();
+                assert!(p.min_scale > 0.0 && p.min_scale <= 1.0);
+                let perm = f.axis.permutation();
+                let [ni, nj, nk] = f.dims;
+                for (i, j, k) in [
+                    (0, 0, 0),
+                    (ni - 1, nj - 1, nk - 1),
+                    (3, 7, nk / 2),
+                    (ni / 2, 1, 2),
+                ] {
+                    let s = f.slice_scale(k).unwrap();
+                    // Where the factorization puts the voxel in the intermediate image.
+                    let u = s.scale * i as f64 + s.origin[0];
+                    let v = s.scale * j as f64 + s.origin[1];
+                    assert!(u > 0.0 && v > 0.0);
+                    assert!(
+                        u < f.intermediate[0] as f64 - 1.0 && v < f.intermediate[1] as f64 - 1.0
+                    );
+                    // Where the camera puts it, mapped through the warp.
+                    let mut idx = [0.0; 3];
+                    idx[perm[0]] = i as f64;
+                    idx[perm[1]] = j as f64;
+                    idx[perm[2]] = k as f64;
+                    let [x, y] = project(&g, &c, fov, idx);
+                    let m = f.image_to_intermediate;
+                    let h: [f64; 3] = core::array::from_fn(|r| m[r][0] * x + m[r][1] * y + m[r][2]);
+                    assert!(h[2] > 0.0);
+                    let (wu, wv) = (h[0] / h[2], h[1] / h[2]);
+                    assert!(
+                        (wu - u).abs() < 1e-6 && (wv - v).abs() < 1e-6,
+                        "{rx} {ry} {fov}: ({wu}, {wv}) vs ({u}, {v})"
+                    );
+                }
+                // The front slice has scale one, the back slice the smallest.
+                let front = if f.k_increasing { 0 } else { nk - 1 };
+                let back = nk - 1 - front;
+                assert!((f.slice_scale(front).unwrap().scale - 1.0).abs() < 1e-12);
+                assert!((f.slice_scale(back).unwrap().scale - p.min_scale).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn perspective_rejects_bad_fields_of_view_and_narrows_to_parallel() {
+        let g = grid([20, 20, 20]);
+        for fov in [0.0, -5.0, 151.0, f64::NAN, f64::INFINITY] {
+            assert!(
+                Factorization::perspective(&g, &cam(0.0, 0.0), fov).is_err(),
+                "{fov}"
+            );
+        }
+        // A narrow field of view is nearly parallel: scales close to one.
+        let f = Factorization::perspective(&g, &cam(20.0, 30.0), 1.0).unwrap();
+        assert!(f.perspective.unwrap().min_scale > 0.97);
+        assert!(Factorization::perspective(&g, &cam(0.0, 0.0), 30.0)
+            .unwrap()
+            .with_supersampling(2)
+            .is_err());
     }
 }

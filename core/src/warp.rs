@@ -4,6 +4,9 @@
 //! intermediate image and reconstructed bilinearly. Positions are 16.16 fixed point: the
 //! start of each output row is computed from the exact affine map (so error does not
 //! accumulate across rows) and stepped by a constant increment along the row.
+//!
+//! A perspective view's warp is projective (§3.3): the homogeneous coordinates are
+//! stepped along the row in Q24 and divided per pixel.
 
 use crate::composite::Rgba;
 use crate::error::{need, Error};
@@ -77,38 +80,83 @@ pub fn warp_rows(
     let row = &mut row[..w];
     let m = view.image_to_intermediate;
     let (iw, ih) = (iwu as i64, ihu as i64);
+    let projective = m[2] != [0.0, 0.0, 1.0];
     let du = to_fixed(m[0][0]);
     let dv = to_fixed(m[1][0]);
-    let one = 1i64 << FRAC;
+    // Projective: numerators and denominator in Q24, stepped exactly along the row.
+    let q = |x: f64| libm::round(x.clamp(-1.0e9, 1.0e9) * (1u64 << PFRAC) as f64) as i64;
+    let step = [q(m[0][0]), q(m[1][0]), q(m[2][0])];
     for y in rows.start..rows.end.min(h) {
         let yc = y as f64 + 0.5;
-        let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
-        let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
-        for out in row.iter_mut() {
-            let u0 = u >> FRAC;
-            let v0 = v >> FRAC;
-            if u0 < -1 || v0 < -1 || u0 >= iw || v0 >= ih {
-                *out = [0; 4];
-            } else {
-                let fu = ((one - (u & (one - 1))) >> 1) as u32;
-                let fv = ((one - (v & (one - 1))) >> 1) as u32;
-                let wts = fixed::bilinear_weights(fu, fv);
-                let mut acc = [0u32; 4];
-                let taps = [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)];
-                for (&(tu, tv), &wt) in taps.iter().zip(wts.iter()) {
-                    if wt != 0 && tu >= 0 && tv >= 0 && tu < iw && tv < ih {
-                        let p = px[(tv * iw + tu) as usize];
-                        for c in 0..4 {
-                            acc[c] += wt * p[c] as u32;
-                        }
-                    }
+        if projective {
+            let at = |r: usize| q(m[r][0] * 0.5 + m[r][1] * yc + m[r][2]);
+            let mut num = [at(0), at(1), at(2)];
+            for out in row.iter_mut() {
+                *out = match project(num) {
+                    Some((u, v)) => sample(px, iw, ih, u, v),
+                    None => [0; 4],
+                };
+                for (n, s) in num.iter_mut().zip(step) {
+                    *n = n.saturating_add(s);
                 }
-                *out = acc.map(|a| fixed::to_u8((a + (1 << 14)) >> 15));
             }
-            u += du;
-            v += dv;
+        } else {
+            let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
+            let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
+            for out in row.iter_mut() {
+                *out = sample(px, iw, ih, u, v);
+                u += du;
+                v += dv;
+            }
         }
         sink.put_row(y, row)?;
     }
     Ok(())
+}
+
+/// Fraction bits of the projective warp's homogeneous coordinates.
+const PFRAC: u32 = 24;
+
+/// `(U/W, V/W)` in 16.16 from Q24 homogeneous coordinates, or `None` where the ray does
+/// not reach the slices (`W ≤ 0`) or lands far outside any intermediate image.
+#[inline]
+fn project(n: [i64; 3]) -> Option<(i64, i64)> {
+    let w = n[2];
+    if w <= 0 || w > 1 << 40 {
+        return None;
+    }
+    // Whole and fractional parts separately, so nothing overflows: |n| < 2^54, w < 2^40.
+    let div = |a: i64| -> Option<i64> {
+        let q = a.div_euclid(w);
+        if !(-(1 << 20)..1 << 20).contains(&q) {
+            return None;
+        }
+        Some((q << FRAC) + (a.rem_euclid(w) << FRAC) / w)
+    };
+    Some((div(n[0])?, div(n[1])?))
+}
+
+/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`; zero outside.
+#[inline]
+fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u8; 4] {
+    let one = 1i64 << FRAC;
+    let u0 = u >> FRAC;
+    let v0 = v >> FRAC;
+    if u0 < -1 || v0 < -1 || u0 >= iw || v0 >= ih {
+        return [0; 4];
+    }
+    let fu = ((one - (u & (one - 1))) >> 1) as u32;
+    let fv = ((one - (v & (one - 1))) >> 1) as u32;
+    let wts = fixed::bilinear_weights(fu, fv);
+    let mut acc = [0u32; 4];
+    let taps = [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)];
+    for (&(tu, tv), &wt) in taps.iter().zip(wts.iter()) {
+        if wt != 0 && tu >= 0 && tv >= 0 && tu < iw && tv < ih {
+            let p = px[(tv * iw + tu) as usize];
+            for c in 0..4 {
+                acc[c] += wt * p[c] as u32;
+            }
+        }
+    }
+    acc.map(|a| fixed::to_u8((a + (1 << 14)) >> 15))
 }

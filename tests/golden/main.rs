@@ -153,6 +153,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
             height: size,
             depth_cue: None,
             shadows: false,
+            fov: None,
         };
         let rimg = reference::render_reference(&vol, &tf, None, RefMode::Composite, &view);
         let theirs: f64 = rimg.iter().map(|p| p[0]).sum::<f64>() / rimg.len() as f64;

@@ -59,6 +59,8 @@ pub struct Case {
     pub post: Option<PostMode>,
     /// Intermediate pixels per voxel.
     pub supersample: usize,
+    /// Perspective field of view in degrees (`None`: parallel projection).
+    pub fov: Option<f64>,
 }
 
 /// The lighting a case uses.
@@ -117,6 +119,7 @@ macro_rules! case {
             two_lights: false,
             post: None,
             supersample: 1,
+            fov: None,
         }
     };
 }
@@ -528,6 +531,104 @@ pub const CASES: &[Case] = &[
             25.0
         )
     },
+    Case {
+        fov: Some(30.0),
+        ..case!(
+            "spheres_persp30_30_45",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            30.0,
+            45.0,
+            30.0
+        )
+    },
+    Case {
+        fov: Some(60.0),
+        ..case!(
+            "spheres_persp60_z",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            0.0,
+            0.0,
+            30.0
+        )
+    },
+    Case {
+        fov: Some(90.0),
+        ..case!(
+            "spheres_persp90_20_m60",
+            Vol::Spheres(64),
+            SPHERE_OPACITY,
+            SPHERE_COLOR,
+            true,
+            Mode::Composite,
+            20.0,
+            -60.0,
+            30.0
+        )
+    },
+    Case {
+        fov: Some(60.0),
+        ..case!(
+            "head64_persp60_34",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -70.0,
+            -35.0,
+            25.0
+        )
+    },
+    Case {
+        fov: Some(90.0),
+        ..case!(
+            "head64_persp90_face",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -90.0,
+            0.0,
+            25.0
+        )
+    },
+    Case {
+        fov: Some(90.0),
+        ..case!(
+            "box_aniso_persp90_30_30",
+            Vol::AnisoBox,
+            BOX_OPACITY,
+            GREY,
+            false,
+            Mode::Composite,
+            30.0,
+            30.0,
+            24.0
+        )
+    },
+    Case {
+        fov: Some(45.0),
+        ..case!(
+            "pd64_mip_persp45_30",
+            Vol::Fixture("mr_pd_brain_series_64.json"),
+            MIP_OPACITY,
+            GREY,
+            false,
+            Mode::Mip,
+            -60.0,
+            30.0,
+            30.0
+        )
+    },
 ];
 
 /// The workspace's `fixtures/` directory.
@@ -613,6 +714,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
     };
     let mut r = Renderer::with_threads(&enc.grid, threads);
     r.set_supersample(case.supersample).expect("supersample");
+    r.set_perspective(case.fov);
     let mut src = enc.volume().expect("volume");
     let frame = r.render(&mut src, &cam, &look).expect("render");
     frame.iter().map(|p| [p[0], p[1], p[2]]).collect()
@@ -653,6 +755,7 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         height: case.size,
         depth_cue: case.depth_cue.map(|d| (d.front, d.density)),
         shadows: case.shadows,
+        fov: case.fov,
     };
     let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
     metrics::to_rgb8(&img)

@@ -53,6 +53,9 @@ pub struct RefView {
     pub depth_cue: Option<(f64, f64)>,
     /// Shadows cast toward the first light (needs shading).
     pub shadows: bool,
+    /// Perspective field of view in degrees across the shorter side (camera on +Z at
+    /// the distance where the bounding sphere fills it), or `None` for orthographic.
+    pub fov: Option<f64>,
 }
 
 impl RefVolume {
@@ -226,6 +229,8 @@ struct Ctx<'a> {
     depth_cue: Option<(f64, f64, f64, f64)>,
     /// Transmittance toward the first light at every voxel.
     shadow: Option<Vec<f64>>,
+    /// Perspective: (eye distance, focal length in pixels).
+    perspective: Option<(f64, f64)>,
 }
 
 impl Ctx<'_> {
@@ -288,14 +293,14 @@ impl Ctx<'_> {
 
     /// Parametric span [t0, t1] (physical length) of `origin + t·dir_idx`
     /// inside the index box, by the slab method.
-    fn span(&self, origin: [f64; 3]) -> Option<(f64, f64)> {
+    fn span(&self, origin: [f64; 3], dir_idx: [f64; 3]) -> Option<(f64, f64)> {
         const EPS: f64 = 1e-9;
         let mut t0 = f64::NEG_INFINITY;
         let mut t1 = f64::INFINITY;
         // Each voxel is a unit cell: the volume spans [−0.5, n − 0.5] in index space, the
         // field is extended to the faces by clamping (as the shear-warp slices, one voxel
         // thick, and their bilinear footprint do).
-        for ((&a, &b), &n) in origin.iter().zip(&self.dir_idx).zip(&self.vol.dims) {
+        for ((&a, &b), &n) in origin.iter().zip(&dir_idx).zip(&self.vol.dims) {
             let lo = -0.5;
             let hi = n as f64 - 0.5;
             if b.abs() < 1e-12 {
@@ -362,10 +367,30 @@ impl Ctx<'_> {
     }
 
     fn pixel(&self, px: usize, py: usize) -> [f64; 3] {
-        let x = (px as f64 + 0.5 - self.width as f64 / 2.0) / self.scale;
-        let y = (self.height as f64 / 2.0 - (py as f64 + 0.5)) / self.scale;
-        let origin = self.to_index(mat_t_vec(&self.rot, [x, y, 0.0]));
-        let Some((t0, t1)) = self.span(origin) else {
+        let (origin, dir_idx) = match self.perspective {
+            None => {
+                let x = (px as f64 + 0.5 - self.width as f64 / 2.0) / self.scale;
+                let y = (self.height as f64 / 2.0 - (py as f64 + 0.5)) / self.scale;
+                (
+                    self.to_index(mat_t_vec(&self.rot, [x, y, 0.0])),
+                    self.dir_idx,
+                )
+            }
+            Some((dist, focal)) => {
+                let d = normalize([
+                    (px as f64 + 0.5 - self.width as f64 / 2.0) / focal,
+                    (self.height as f64 / 2.0 - (py as f64 + 0.5)) / focal,
+                    -1.0,
+                ]);
+                let o = mat_t_vec(&self.rot, d);
+                let s = self.vol.spacing;
+                (
+                    self.to_index(mat_t_vec(&self.rot, [0.0, 0.0, dist])),
+                    [o[0] / s[0], o[1] / s[1], o[2] / s[2]],
+                )
+            }
+        };
+        let Some((t0, t1)) = self.span(origin, dir_idx) else {
             return [0.0; 3];
         };
         // Midpoint rule: `count` equal steps of about `self.step` cover [t0, t1] exactly.
@@ -375,9 +400,9 @@ impl Ctx<'_> {
         let point = |k: usize| {
             let t = t0 + (k as f64 + 0.5) * step;
             [
-                origin[0] + t * self.dir_idx[0],
-                origin[1] + t * self.dir_idx[1],
-                origin[2] + t * self.dir_idx[2],
+                origin[0] + t * dir_idx[0],
+                origin[1] + t * dir_idx[1],
+                origin[2] + t * dir_idx[2],
             ]
         };
         match self.mode {
@@ -527,6 +552,10 @@ pub fn render_reference(
         scale: w.min(h) as f64 / diag,
         width: w,
         height: h,
+        perspective: view.fov.map(|fov| {
+            let half = fov.to_radians() / 2.0;
+            (0.5 * diag / half.sin(), 0.5 * w.min(h) as f64 / half.tan())
+        }),
     };
 
     let threads = std::thread::available_parallelism()
@@ -602,6 +631,7 @@ mod tests {
             height: h,
             depth_cue: None,
             shadows: false,
+            fov: None,
         }
     }
 

@@ -154,6 +154,7 @@ fn reference_image(
             height: size,
             depth_cue: None,
             shadows: false,
+            fov: None,
         },
     );
     let img = metrics::to_rgb8(&img);

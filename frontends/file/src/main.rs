@@ -90,6 +90,25 @@ enum Command {
 }
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+enum ProjectionArg {
+    Parallel,
+    Perspective,
+}
+
+impl RenderOpts {
+    /// The field of view for a perspective renderer, `None` for parallel projection.
+    fn perspective(&self) -> Result<Option<f64>, String> {
+        match self.projection {
+            ProjectionArg::Parallel => Ok(None),
+            ProjectionArg::Perspective if self.mode.dense() => {
+                Err("--projection perspective works with --mode composite or mip".into())
+            }
+            ProjectionArg::Perspective => Ok(Some(self.fov)),
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 enum ModeArg {
     /// Classified RLE volume, "over" compositing.
     Composite,
@@ -176,6 +195,14 @@ struct RenderOpts {
     /// for images larger than the volume's projection.
     #[arg(long, default_value_t = 1)]
     supersample: usize,
+    /// Projection: parallel (the default) or perspective (camera on +Z at the distance
+    /// where the volume's bounding sphere fills --fov).
+    #[arg(long, value_enum, default_value_t = ProjectionArg::Parallel)]
+    projection: ProjectionArg,
+    /// Field of view in degrees across the shorter image side, for --projection
+    /// perspective (1..=150).
+    #[arg(long, default_value_t = 30.0)]
+    fov: f64,
     /// Compositing threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -445,6 +472,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             output,
             opts,
         } if opts.mode.dense() => {
+            opts.perspective()?;
             let mut d = prepare_dense(&volume, &opts)?;
             let frame = d
                 .renderer
@@ -503,6 +531,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let mut src = p.encoded.volume()?;
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_supersample(opts.supersample)?;
+            r.set_perspective(opts.perspective()?);
             let frame = r.render(&mut src, &p.camera, &p.look)?;
             scene::save_png(&output, p.camera.width, p.camera.height, &frame)
                 .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
@@ -625,6 +654,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let mut src = p.encoded.volume()?;
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_supersample(opts.supersample)?;
+            r.set_perspective(opts.perspective()?);
             let mut times = Vec::with_capacity(frames);
             for i in 0..frames {
                 let mut cam = p.camera;

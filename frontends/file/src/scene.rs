@@ -202,6 +202,7 @@ pub struct Renderer {
     shadow_rows: Vec<u16>,
     shade0: Box<ShadeTable>,
     supersample: usize,
+    fov: Option<f64>,
 }
 
 impl Renderer {
@@ -230,6 +231,7 @@ impl Renderer {
             shadow_rows: vec![0; shadow::row_buffer_len(m)],
             shade0: Box::new(ShadeTable::UNSHADED),
             supersample: 1,
+            fov: None,
         }
     }
 
@@ -243,6 +245,12 @@ impl Renderer {
         }
         self.supersample = s;
         Ok(())
+    }
+
+    /// Renders perspective views with a `fov` (degrees) field of view, or parallel
+    /// projection with `None` (see [`shearwarp_core::view::Factorization::perspective`]).
+    pub fn set_perspective(&mut self, fov: Option<f64>) {
+        self.fov = fov;
     }
 
     /// Number of compositing threads.
@@ -281,14 +289,17 @@ impl Renderer {
         };
         let grid = source.grid();
         let shade0 = look.shadows.then_some(&mut *self.shade0);
-        let frame = Frame::supersampled(
-            &grid,
-            camera,
-            &settings,
-            &mut self.shade,
-            shade0,
-            self.supersample,
-        )?;
+        let frame = match self.fov {
+            Some(fov) => Frame::perspective(&grid, camera, fov, &settings, &mut self.shade)?,
+            None => Frame::supersampled(
+                &grid,
+                camera,
+                &settings,
+                &mut self.shade,
+                shade0,
+                self.supersample,
+            )?,
+        };
         let shade0 = look.shadows.then_some(&*self.shade0);
         let tables = frame.tables(&look.color, &self.shade, shade0);
         let [iw, ih] = frame.view.intermediate;
@@ -297,7 +308,7 @@ impl Renderer {
             self.pixels.resize(n, [0; 4]);
             self.links.resize(n, 0);
         }
-        let need_row = composite::row_buffer_len(frame.view.dims[0]);
+        let need_row = composite::rows_needed(&frame.view);
         for r in &mut self.rows {
             if r.len() < need_row {
                 r.resize(need_row, [0; 4]);

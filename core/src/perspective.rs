@@ -1,0 +1,433 @@
+//! Compositing for perspective views (Lacroute 1995, §4.2).
+//!
+//! In a perspective factorization every slice is scaled by `σ(k) ≤ 1` as well as
+//! translated, so an intermediate pixel covers `1/σ` voxels of a far slice. Each pixel is
+//! resampled with the thesis's filter, a box reconstruction convolved with a box low-pass
+//! as wide as the decimation (the tent of bilinear interpolation when `σ = 1`): voxel `i`
+//! weighs `overlap([i − ½, i + ½], [x − W/2, x + W/2]) / W` at slice position `x`, with
+//! `W = 1/σ`, and the 2D weight is the product of the two axes.
+//!
+//! The filter is separable and its horizontal weights do not depend on the scanline, so
+//! each voxel row of a slice is filtered horizontally once, into an intermediate-width
+//! row held in a small ring, and every intermediate scanline combines the few ring rows
+//! under its footprint. Only pixel ranges touched by non-transparent voxel runs are
+//! filtered, and opaque intermediate pixels are linked over as in the parallel path.
+//!
+//! Opacity correction differs from ray to ray (the step between slices along a ray from
+//! the eye grows off-axis, §4.2.3), but is constant along each ray. Voxels are corrected
+//! for the smallest step of the view, and each resampled pixel is then corrected from
+//! there to its own ray's step through a small table of gains interpolated between
+//! [`GAIN_LEVELS`] step lengths; on uniform material this equals correcting every voxel
+//! for the pixel's own step.
+
+use crate::composite::{skip_opaque, Intermediate, Mode, Rgba, Row, SliceTables, Spans};
+use crate::error::{need, Error};
+use crate::fixed::ONE;
+use crate::rle::RleSlice;
+use crate::view::{Factorization, Perspective, MAX_DECIMATION};
+
+/// Step lengths at which the per-ray gain table is tabulated.
+pub const GAIN_LEVELS: usize = 16;
+
+/// Most voxels under one pixel's filter along an axis.
+const MAX_TAPS: usize = MAX_DECIMATION + 3;
+
+/// Fraction bits of slice positions.
+const P: u32 = 16;
+const P1: i64 = 1 << P;
+
+/// Per-frame tables for the ray-dependent part of perspective opacity correction.
+#[derive(Clone, Debug)]
+pub struct RayGain {
+    /// `gain[l][a]`: Q12 factor taking a pixel of opacity `(a + ½)/256`, corrected for
+    /// the view's smallest step, to step level `l`.
+    gain: [[u16; 256]; GAIN_LEVELS],
+    /// Level position (Q8) = `(ka·du² + kb·dv² + c) >> 24`, `du`, `dv` in Q4 pixels
+    /// from `(u0, v0)`.
+    ka: i64,
+    kb: i64,
+    c: i64,
+    u0: i64,
+    v0: i64,
+}
+
+impl RayGain {
+    /// Tables for a perspective view.
+    pub fn new(p: &Perspective) -> Self {
+        let [lo, hi] = p.ratio_sq_range;
+        let span = hi - lo;
+        let levels = (GAIN_LEVELS - 1) as f64;
+        let per = if span > 1e-9 {
+            levels * 256.0 / span
+        } else {
+            0.0
+        };
+        let r0 = libm::sqrt(lo);
+        let mut gain = [[0u16; 256]; GAIN_LEVELS];
+        for (l, row) in gain.iter_mut().enumerate() {
+            let r = libm::sqrt(lo + span * l as f64 / levels);
+            let e = if r0 > 0.0 { r / r0 } else { 1.0 };
+            for (a, g) in row.iter_mut().enumerate() {
+                let alpha = (a as f64 + 0.5) / 256.0;
+                let corrected = 1.0 - libm::pow(1.0 - alpha, e);
+                *g = libm::round(corrected / alpha * 4096.0).clamp(0.0, 65535.0) as u16;
+            }
+        }
+        let q = |x: f64| libm::round(x.clamp(-1e15, 1e15)) as i64;
+        RayGain {
+            gain,
+            ka: q(per * p.ratio_sq[1] * 65536.0),
+            kb: q(per * p.ratio_sq[3] * 65536.0),
+            c: q(per * (p.ratio_sq[0] - lo) * 16_777_216.0),
+            u0: q(p.ratio_sq[2] * 16.0),
+            v0: q(p.ratio_sq[4] * 16.0),
+        }
+    }
+
+    /// The row term of pixel `(·, v)`'s level position.
+    #[inline]
+    fn row_term(&self, v: usize) -> i64 {
+        let dv = (v as i64) * 16 - self.v0;
+        self.kb.saturating_mul(dv * dv).saturating_add(self.c)
+    }
+
+    /// Applies the gain of pixel `u` (row term `rv`) to a resampled sample.
+    #[inline]
+    fn apply(&self, s: &mut [u32; 4], u: usize, rv: i64) {
+        let du = (u as i64) * 16 - self.u0;
+        let pos = (self.ka.saturating_mul(du * du).saturating_add(rv) >> 24)
+            .clamp(0, (GAIN_LEVELS as i64 - 1) * 256);
+        let (mut l, mut f) = ((pos >> 8) as usize, (pos & 255) as u32);
+        if l >= GAIN_LEVELS - 1 {
+            l = GAIN_LEVELS - 2;
+            f = 256;
+        }
+        let a = (s[3] >> 7).min(255) as usize;
+        let g = (self.gain[l][a] as u32 * (256 - f) + self.gain[l + 1][a] as u32 * f) >> 8;
+        for c in s.iter_mut() {
+            *c = ((*c * g + 2048) >> 12).min(ONE);
+        }
+    }
+}
+
+/// Row-buffer entries [`composite_slice`] needs for `view`: one shaded voxel row plus
+/// a ring of filtered rows as wide as the intermediate image.
+pub fn row_buffer_len(view: &Factorization) -> usize {
+    view.dims[0] + 2 + ring_len(view) * view.intermediate[0]
+}
+
+/// Filtered rows held at once: the most voxel rows under one pixel's footprint.
+fn ring_len(view: &Factorization) -> usize {
+    match &view.perspective {
+        Some(p) => ((1.0 / p.min_scale) as usize + 3).min(MAX_TAPS),
+        None => 0,
+    }
+}
+
+/// One axis of a slice's resampling: slice position `x(u) = u·w − a` (Q16).
+#[derive(Clone, Copy)]
+struct AxisMap {
+    /// Footprint width `1/σ`, Q16.
+    w: i64,
+    /// Position of pixel 0, negated, Q16.
+    a: i64,
+    /// `2^31 / w`: turns a Q16 length inside the footprint into a Q15 weight.
+    recip: i64,
+}
+
+impl AxisMap {
+    fn new(scale: f64, origin: f64) -> Self {
+        let w = libm::round(P1 as f64 / scale) as i64;
+        AxisMap {
+            w,
+            a: libm::round(origin / scale * P1 as f64) as i64,
+            recip: (1i64 << 31) / w.max(1),
+        }
+    }
+
+    /// Voxels under pixel `u`'s footprint: the first index, and Q15 weights (summing to
+    /// one) in `out`; returns the count. Voxels outside `0..n` keep their weight slot
+    /// and are skipped by the caller.
+    #[inline]
+    fn taps(&self, u: i64, out: &mut [u32; MAX_TAPS]) -> (i64, usize) {
+        let lo = u * self.w - self.a - self.w / 2;
+        let hi = lo + self.w;
+        let first = (lo + P1 / 2).div_euclid(P1);
+        let mut prev = 0u32;
+        let mut n = 0;
+        let mut edge = first * P1 + P1 / 2; // right edge of voxel `first`
+        while n < MAX_TAPS {
+            let cum = if edge >= hi {
+                ONE
+            } else {
+                (((edge - lo) * self.recip) >> 16).clamp(0, ONE as i64) as u32
+            };
+            out[n] = cum - prev.min(cum);
+            prev = cum;
+            n += 1;
+            if edge >= hi {
+                break;
+            }
+            edge += P1;
+        }
+        (first, n)
+    }
+
+    /// Pixels whose footprint overlaps voxels `a..b`: `[lo, hi)` before clamping.
+    fn pixels_of(&self, a: usize, b: usize) -> (i64, i64) {
+        let left = a as i64 * P1 - P1 / 2 - self.w / 2 + self.a;
+        let right = b as i64 * P1 - P1 / 2 + self.w / 2 + self.a;
+        (left.div_euclid(self.w) + 1, right.div_euclid(self.w) + 1)
+    }
+}
+
+/// A filtered row in the ring: which voxel row it holds and its non-zero pixel range.
+#[derive(Clone, Copy)]
+struct Slot {
+    j: i64,
+    lo: usize,
+    hi: usize,
+}
+
+/// Composites slice `k` of a perspective view into the scanlines `img` holds. `rows`
+/// must hold [`row_buffer_len`]`(view)` entries.
+pub fn composite_slice(
+    img: &mut Intermediate<'_>,
+    slice: &RleSlice<'_>,
+    k: usize,
+    view: &Factorization,
+    tables: &SliceTables<'_>,
+    rows: &mut [Rgba],
+) -> Result<(), Error> {
+    let gain = tables.ray_gain;
+    let [ni, nj, _] = view.dims;
+    let Some(ss) = view.slice_scale(k) else {
+        return Err(Error::BadParameter {
+            reason: "perspective compositing needs a perspective view",
+        });
+    };
+    let ring = ring_len(view);
+    let width = img.width();
+    need("perspective row buffer", row_buffer_len(view), rows.len())?;
+    if width != view.intermediate[0] {
+        return Err(Error::BadParameter {
+            reason: "intermediate image does not match the frame",
+        });
+    }
+    if tables.mode == Mode::Composite && gain.is_none() {
+        return Err(Error::BadParameter {
+            reason: "perspective compositing needs the per-ray opacity tables",
+        });
+    }
+    let (voxel_row, ring_buf) = rows.split_at_mut(ni + 2);
+    let mut row = Row::new(voxel_row);
+    let ring_buf = &mut ring_buf[..ring * width];
+    ring_buf.fill([0; 4]);
+    let mut slots = [Slot {
+        j: i64::MIN,
+        lo: 0,
+        hi: 0,
+    }; MAX_TAPS];
+    let xs = AxisMap::new(ss.scale, ss.origin[0]);
+    let ys = AxisMap::new(ss.scale, ss.origin[1]);
+    let mut wx = [0u32; MAX_TAPS];
+    let mut wy = [0u32; MAX_TAPS];
+    for v in img.first_row()..img.first_row() + img.pixels().len() / width.max(1) {
+        let (j0, count) = ys.taps(v as i64, &mut wy);
+        if j0 + count as i64 <= 0 || j0 >= nj as i64 {
+            continue;
+        }
+        // Filter the voxel rows under this scanline that the ring lacks; list the ring
+        // rows and weights the scanline combines.
+        let mut lo = usize::MAX;
+        let mut hi = 0;
+        let mut under = [(0usize, 0u32); MAX_TAPS];
+        let mut n_under = 0;
+        for (t, &w) in wy[..count].iter().enumerate() {
+            let j = j0 + t as i64;
+            if j < 0 || j >= nj as i64 || w == 0 {
+                continue;
+            }
+            let s = j.rem_euclid(ring as i64) as usize;
+            if slots[s].j != j {
+                let out = &mut ring_buf[s * width..(s + 1) * width];
+                let (a, b) = (slots[s].lo, slots[s].hi);
+                if a < b {
+                    out[a..b].fill([0; 4]);
+                }
+                let (runs, voxels) = slice.scanline(j as usize);
+                row.fill(runs, voxels, tables, ONE, j, None, None);
+                slots[s] = filter_row(out, &row, runs, &xs, ni, &mut wx);
+                slots[s].j = j;
+            }
+            lo = lo.min(slots[s].lo);
+            hi = hi.max(slots[s].hi);
+            under[n_under] = (s * width, w);
+            n_under += 1;
+        }
+        let under = &under[..n_under];
+        if lo >= hi {
+            continue;
+        }
+        let line = (v - img.first_row()) * width;
+        let (pixels, links) = img.scanline_mut(line, width);
+        let rv = gain.map_or(0, |g| g.row_term(v));
+        let mut u = lo;
+        while u < hi {
+            if links[u] != 0 {
+                u = skip_opaque(links, u);
+                continue;
+            }
+            let mut s = [0u32; 4];
+            for &(base, w) in under {
+                let h = ring_buf[base + u];
+                for c in 0..4 {
+                    s[c] += w * h[c] as u32;
+                }
+            }
+            let mut s = s.map(|x| ((x + (1 << 14)) >> 15).min(ONE));
+            let p = &mut pixels[u];
+            match tables.mode {
+                Mode::Composite => {
+                    if s[3] != 0 {
+                        if let Some(g) = gain {
+                            g.apply(&mut s, u, rv);
+                        }
+                        let tr = ONE - p[3] as u32;
+                        for c in 0..4 {
+                            p[c] = (p[c] as u32 + ((s[c] * tr + (1 << 14)) >> 15)).min(ONE) as u16;
+                        }
+                        if p[3] as u32 >= tables.ert {
+                            links[u] = 1;
+                        }
+                    }
+                }
+                Mode::Mip => {
+                    if s[0] > p[0] as u32 {
+                        *p = [s[0] as u16; 4];
+                    }
+                }
+            }
+            u += 1;
+        }
+    }
+    row.clear();
+    Ok(())
+}
+
+/// Filters the shaded voxel row `row` horizontally into `out` (zero on entry) over the
+/// pixels its non-transparent runs reach; returns the written range.
+fn filter_row(
+    out: &mut [Rgba],
+    row: &Row<'_>,
+    runs: &[u8],
+    xs: &AxisMap,
+    ni: usize,
+    wx: &mut [u32; MAX_TAPS],
+) -> Slot {
+    let width = out.len() as i64;
+    let mut slot = Slot {
+        j: 0,
+        lo: usize::MAX,
+        hi: 0,
+    };
+    let mut done = 0i64;
+    for (a, b) in Spans::new(runs) {
+        let (ua, ub) = xs.pixels_of(a, b);
+        let ua = ua.max(done).clamp(0, width);
+        let ub = ub.clamp(0, width);
+        if ua >= ub {
+            continue;
+        }
+        for u in ua..ub {
+            let (first, n) = xs.taps(u, wx);
+            let mut acc = [0u32; 4];
+            for (t, &w) in wx[..n].iter().enumerate() {
+                let i = first + t as i64;
+                if w == 0 || i < 0 || i >= ni as i64 {
+                    continue;
+                }
+                let px = row.buf[i as usize + 1];
+                for c in 0..4 {
+                    acc[c] += w * px[c] as u32;
+                }
+            }
+            out[u as usize] = acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16);
+        }
+        slot.lo = slot.lo.min(ua as usize);
+        slot.hi = ub as usize;
+        done = ub;
+    }
+    if slot.lo > slot.hi {
+        slot.lo = 0;
+        slot.hi = 0;
+    }
+    slot
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn weights(scale: f64, origin: f64, u: i64) -> (i64, heapless::Vec<u32, MAX_TAPS>) {
+        let m = AxisMap::new(scale, origin);
+        let mut w = [0; MAX_TAPS];
+        let (first, n) = m.taps(u, &mut w);
+        (first, w[..n].iter().copied().collect())
+    }
+
+    #[test]
+    fn unit_scale_is_bilinear() {
+        // Pixel 5 with voxel 0 at 1.3: slice position 3.7 → voxels 3 (0.3) and 4 (0.7).
+        let (first, w) = weights(1.0, 1.3, 5);
+        assert_eq!(first, 3);
+        let ones: u32 = w.iter().sum();
+        assert_eq!(ones, ONE);
+        assert!((w[0] as f64 / ONE as f64 - 0.3).abs() < 1e-3, "{w:?}");
+        assert!((w[1] as f64 / ONE as f64 - 0.7).abs() < 1e-3, "{w:?}");
+    }
+
+    #[test]
+    fn decimated_weights_are_box_overlaps_summing_to_one() {
+        for &scale in &[0.9, 0.5, 0.37, 0.125] {
+            for u in 0..40 {
+                let (first, w) = weights(scale, 2.25, u);
+                assert_eq!(w.iter().sum::<u32>(), ONE, "scale {scale} u {u}");
+                // Compare with the exact overlaps.
+                let x = (u as f64 - 2.25) / scale;
+                let wd = 1.0 / scale;
+                for (t, &wt) in w.iter().enumerate() {
+                    let i = (first + t as i64) as f64;
+                    let ov = ((i + 0.5).min(x + wd / 2.0) - (i - 0.5).max(x - wd / 2.0)).max(0.0);
+                    assert!(
+                        (wt as f64 / ONE as f64 - ov / wd).abs() < 2e-4,
+                        "{scale} {u} {t}"
+                    );
+                }
+                assert!(w.len() <= (1.0 / scale) as usize + 2);
+            }
+        }
+    }
+
+    #[test]
+    fn pixel_ranges_cover_every_pixel_a_run_reaches() {
+        for &scale in &[1.0, 0.6, 0.3] {
+            let m = AxisMap::new(scale, 3.4);
+            let (lo, hi) = m.pixels_of(5, 9);
+            let mut w = [0; MAX_TAPS];
+            for u in lo - 3..hi + 3 {
+                let (first, n) = m.taps(u, &mut w);
+                let touches = (0..n).any(|t| {
+                    let i = first + t as i64;
+                    w[t] > 0 && (5..9).contains(&i)
+                });
+                if touches {
+                    assert!(
+                        u >= lo && u < hi,
+                        "scale {scale}: pixel {u} outside {lo}..{hi}"
+                    );
+                }
+            }
+        }
+    }
+}
