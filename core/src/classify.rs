@@ -92,6 +92,12 @@ pub struct Grid {
     pub dims: [usize; 3],
     /// Voxel spacing along x, y, z (any unit, typically mm).
     pub spacing: [f64; 3],
+    /// Length opacities are given per: the smallest spacing, or the full-resolution
+    /// volume's for a level of detail ([`Grid::as_level_of`]).
+    opacity_unit: f64,
+    /// Diagonal the image is framed on: this volume's, or the full-resolution one's for
+    /// a level of detail.
+    frame_diagonal: f64,
 }
 
 impl Grid {
@@ -118,7 +124,34 @@ impl Grid {
         {
             return Err(Error::BadSpacing);
         }
-        Ok(Grid { dims, spacing })
+        let mut g = Grid {
+            dims,
+            spacing,
+            opacity_unit: 0.0,
+            frame_diagonal: 0.0,
+        };
+        g.opacity_unit = g.min_spacing();
+        g.frame_diagonal = g.diagonal();
+        Ok(g)
+    }
+
+    /// This grid as a level of detail of `full`: opacities keep `full`'s unit length (so
+    /// the coarser level, with fewer and longer steps, composites equally bright) and
+    /// the image keeps `full`'s framing.
+    pub fn as_level_of(mut self, full: &Grid) -> Grid {
+        self.opacity_unit = full.opacity_unit;
+        self.frame_diagonal = full.frame_diagonal;
+        self
+    }
+
+    /// Length that transfer-function opacities are given per.
+    pub fn opacity_unit(&self) -> f64 {
+        self.opacity_unit
+    }
+
+    /// Diagonal the image's shorter side spans (the camera contract).
+    pub fn frame_diagonal(&self) -> f64 {
+        self.frame_diagonal
     }
     /// Total voxel count.
     pub fn voxel_count(&self) -> usize {
@@ -308,7 +341,7 @@ pub fn quantizer(range: (u16, u16)) -> (u32, u32) {
 /// Fixed-point factors that turn index differences into physical gradients measured per
 /// smallest spacing: `w_axis = round(2^12 · s_min / s_axis)`.
 fn gradient_weights(grid: &Grid) -> [i64; 3] {
-    let smin = grid.min_spacing();
+    let smin = grid.opacity_unit();
     grid.spacing
         .map(|s| libm::round(4096.0 * smin / s).max(1.0) as i64)
 }

@@ -31,6 +31,7 @@ pub mod depth;
 pub mod error;
 pub mod fixed;
 pub mod io;
+pub mod lod;
 pub mod normal;
 pub mod perspective;
 pub mod postclass;

@@ -277,8 +277,24 @@ pub fn composite_band<S: SliceSource>(
     tables: &SliceTables<'_>,
     img: &mut Intermediate<'_>,
     rows: &mut [Rgba],
-    mut shadow: Option<(&mut [u16], &mut [u16])>,
+    shadow: Option<(&mut [u16], &mut [u16])>,
 ) -> Result<(), Error> {
+    composite_band_until(source, frame, tables, img, rows, shadow, &mut || true).map(|_| ())
+}
+
+/// [`composite_band`] that asks `keep_going` before every slice and stops when it says
+/// no: a frontend interrupts a frame that a newer view has made useless after at most one
+/// slice of work. Returns whether the band was finished (an interrupted band's pixels
+/// hold the slices composited so far, front to back: a usable, incomplete image).
+pub fn composite_band_until<S: SliceSource>(
+    source: &mut S,
+    frame: &Frame,
+    tables: &SliceTables<'_>,
+    img: &mut Intermediate<'_>,
+    rows: &mut [Rgba],
+    mut shadow: Option<(&mut [u16], &mut [u16])>,
+    keep_going: &mut dyn FnMut() -> bool,
+) -> Result<bool, Error> {
     let view = &frame.view;
     need("row buffer", composite::rows_needed(view), rows.len())?;
     if img.width() != view.intermediate[0] || img.height() != view.intermediate[1] {
@@ -303,6 +319,9 @@ pub fn composite_band<S: SliceSource>(
         alpha[..sf.size[0] * sf.size[1]].fill(0);
     }
     for idx in 0..view.dims[2] {
+        if !keep_going() {
+            return Ok(false);
+        }
         let k = view.slice_at(idx);
         match (&frame.shadow, shadow.as_mut()) {
             (Some(sf), Some((alpha, srows))) => {
@@ -328,7 +347,7 @@ pub fn composite_band<S: SliceSource>(
     if let Some(d) = &frame.depth {
         img.apply_depth_cue(d);
     }
-    Ok(())
+    Ok(true)
 }
 
 /// Renders one frame of `source` into `sink` on the calling thread.

@@ -65,7 +65,7 @@ impl ShadowFrame {
             shear,
             translate,
             size,
-            opacity: crate::classify::opacity_correction(len / grid.min_spacing()),
+            opacity: crate::classify::opacity_correction(len / grid.opacity_unit()),
         })
     }
 

@@ -191,7 +191,7 @@ impl Factorization {
         // Object index point -> image coordinates: linear columns and the image of the
         // permuted origin.
         let (w, h) = (camera.width as f64, camera.height as f64);
-        let scale = w.min(h) / grid.diagonal();
+        let scale = w.min(h) / grid.frame_diagonal();
         let to_image = |obj: [f64; 3]| -> [f64; 2] {
             let q = [
                 rot[0][0] * obj[0] + rot[0][1] * obj[1] + rot[0][2] * obj[2],
@@ -243,7 +243,7 @@ impl Factorization {
             image: [camera.width, camera.height],
             image_to_intermediate,
             rotation: rot,
-            step_ratio: step_len / grid.min_spacing(),
+            step_ratio: step_len / grid.opacity_unit(),
             supersample: 1,
             perspective: None,
         })
@@ -267,7 +267,7 @@ impl Factorization {
         }
         let rot = rotation(camera.rotate_x, camera.rotate_y);
         let half = fov_deg.to_radians() * 0.5;
-        let radius = grid.diagonal() * 0.5;
+        let radius = grid.frame_diagonal() * 0.5;
         let dist = radius / libm::sin(half);
         let (w, h) = (camera.width as f64, camera.height as f64);
         let focal = 0.5 * w.min(h) / libm::tan(half);
@@ -379,7 +379,7 @@ impl Factorization {
         // Opacity correction: the step between slices along the ray through (u, v) is
         // the index vector (du/dk, dv/dk, 1) with du = u − t_i − e_i, in physical units.
         let sp = [grid.spacing[p[0]], grid.spacing[p[1]], grid.spacing[p[2]]];
-        let s0 = grid.min_spacing();
+        let s0 = grid.opacity_unit();
         let ratio_sq = [
             (sp[2] / s0) * (sp[2] / s0),
             (sp[0] / (dk * s0)) * (sp[0] / (dk * s0)),

@@ -720,6 +720,38 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
     frame.iter().map(|p| [p[0], p[1], p[2]]).collect()
 }
 
+/// Renders a classic (RLE) case from level `level` of the volume's level-of-detail
+/// pyramid (0: the volume itself).
+pub fn render_level(case: &Case, raw: &RawVolume, level: usize) -> Vec<[u8; 3]> {
+    let (lod, _) = scene::lod(raw, level).expect("level");
+    let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing).expect("grid");
+    let class = Classification {
+        opacity: case.opacity.to_vec(),
+        gradient: None,
+        min_opacity: 0.0,
+    };
+    let enc = scene::encode(&lod, &class).expect("encode").as_level(&full);
+    let look = Look {
+        mode: case.mode,
+        color: scene::color_table(case.color, enc.range).expect("colour"),
+        lighting: case.shading.then(|| lighting(case)),
+        ert_threshold: 0.95,
+        depth_cue: None,
+        shadows: false,
+    };
+    let cam = Camera {
+        rotate_x: case.rx,
+        rotate_y: case.ry,
+        width: case.size,
+        height: case.size,
+    };
+    let mut r = Renderer::new(&enc.grid);
+    r.set_perspective(case.fov);
+    let mut src = enc.volume().expect("volume");
+    let frame = r.render(&mut src, &cam, &look).expect("render");
+    frame.iter().map(|p| [p[0], p[1], p[2]]).collect()
+}
+
 /// Renders a case with the reference ray caster.
 pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
     let vol = match &raw.voxels {

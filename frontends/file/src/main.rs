@@ -203,6 +203,10 @@ struct RenderOpts {
     /// perspective (1..=150).
     #[arg(long, default_value_t = 30.0)]
     fov: f64,
+    /// Render level L of the level-of-detail pyramid (each level halves the resolution;
+    /// the image keeps the full volume's framing and brightness).
+    #[arg(long, default_value_t = 0)]
+    lod: usize,
     /// Compositing threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -263,7 +267,16 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
         (enc, Some(look))
     } else {
         let raw = load_raw(path, o)?;
-        (encode_raw(&raw, o)?, None)
+        if o.lod > 0 {
+            if o.lod > 8 {
+                return Err("--lod must be 0..=8".into());
+            }
+            let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing)?;
+            let (level, _) = scene::lod(&raw, o.lod)?;
+            (encode_raw(&level, o)?.as_level(&full), None)
+        } else {
+            (encode_raw(&raw, o)?, None)
+        }
     };
     let color = match (&o.color, &file_look) {
         (Some(s), _) => scene::color_table(&tfspec::parse_color(s)?, encoded.range)?,

@@ -16,6 +16,7 @@ use shearwarp_core::view::{self, Camera, Factorization};
 use shearwarp_core::warp::FrameBuffer;
 use shearwarp_core::Error;
 use shearwarp_core::{io, postclass, swv, warp};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
 /// Everything about appearance that is decided when the volume is encoded.
@@ -99,7 +100,48 @@ pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error>
     })
 }
 
+/// Level `level` of `raw`'s level-of-detail pyramid (0: `raw` itself), built with the
+/// core's centred 2×2×2 means ([`shearwarp_core::lod`]); returns the volume and its grid,
+/// which keeps `raw`'s opacity unit and framing (set it on the encoded level with
+/// [`Encoded::as_level`]).
+pub fn lod(raw: &RawVolume, level: usize) -> Result<(RawVolume, Grid), Error> {
+    let full = Grid::new(raw.dims, raw.spacing)?;
+    let mut grid = full;
+    let mut vol = raw.clone();
+    for _ in 0..level {
+        let n = shearwarp_core::lod::level_dims(grid.dims);
+        let count = n[0] * n[1] * n[2];
+        let next = match &vol.voxels {
+            Voxels::U8(d) => {
+                let (mut mean, mut lo, mut hi) =
+                    (vec![0u8; count], vec![0u8; count], vec![0u8; count]);
+                grid = shearwarp_core::lod::downsample(d, &grid, &mut mean, &mut lo, &mut hi)?;
+                Voxels::U8(mean)
+            }
+            Voxels::U16(d) => {
+                let (mut mean, mut lo, mut hi) =
+                    (vec![0u16; count], vec![0u16; count], vec![0u16; count]);
+                grid = shearwarp_core::lod::downsample(d, &grid, &mut mean, &mut lo, &mut hi)?;
+                Voxels::U16(mean)
+            }
+        };
+        vol = RawVolume {
+            name: vol.name.clone(),
+            dims: grid.dims,
+            spacing: grid.spacing,
+            voxels: next,
+        };
+    }
+    Ok((vol, grid))
+}
+
 impl Encoded {
+    /// Marks this encoding as a level of detail of `full` (see [`Grid::as_level_of`]).
+    pub fn as_level(mut self, full: &Grid) -> Self {
+        self.grid = self.grid.as_level_of(full);
+        self
+    }
+
     /// Borrows the encoded copies as a renderable source.
     pub fn volume(&self) -> Result<RleVolume<'_>, Error> {
         let axis = |a: Axis| {
@@ -279,6 +321,22 @@ impl Renderer {
         camera: &Camera,
         look: &Look,
     ) -> Result<Frame, Error> {
+        let frame = self.composite_until(source, camera, look, &|| true)?;
+        frame.ok_or(Error::Source {
+            reason: "compositing stopped without being asked to",
+        })
+    }
+
+    /// As [`Renderer::composite`], asking `keep_going` before every slice of every band
+    /// ([`render::composite_band_until`]); `None` when it said no and the frame was
+    /// abandoned.
+    pub fn composite_until<S: SliceSource + Clone + Send>(
+        &mut self,
+        source: &mut S,
+        camera: &Camera,
+        look: &Look,
+        keep_going: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Option<Frame>, Error> {
         let settings = Settings {
             mode: look.mode,
             color: &look.color,
@@ -328,8 +386,17 @@ impl Renderer {
                 None => None,
             };
             let mut img = Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
-            render::composite_band(source, &frame, &tables, &mut img, &mut self.rows[0], shadow)?;
-            return Ok(frame);
+            let rows = &mut self.rows[0];
+            let done = render::composite_band_until(
+                source,
+                &frame,
+                &tables,
+                &mut img,
+                rows,
+                shadow,
+                &mut || keep_going(),
+            )?;
+            return Ok(done.then_some(frame));
         }
         let band = Self::BAND_ROWS * iw;
         let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(
@@ -344,12 +411,13 @@ impl Renderer {
         let poisoned = || Error::Source {
             reason: "a compositing thread panicked",
         };
+        let stopped = AtomicBool::new(false);
         std::thread::scope(|scope| -> Result<(), Error> {
             let handles: Vec<_> = self
                 .rows
                 .iter_mut()
                 .map(|rows| {
-                    let (queue, frame, tables) = (&queue, &frame, &tables);
+                    let (queue, frame, tables, stopped) = (&queue, &frame, &tables, &stopped);
                     let mut src = source.clone();
                     scope.spawn(move || -> Result<(), Error> {
                         loop {
@@ -358,7 +426,13 @@ impl Renderer {
                             let row0 = i * Self::BAND_ROWS;
                             let here = Self::BAND_ROWS.min(ih - row0);
                             let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
-                            render::composite_band(&mut src, frame, tables, &mut img, rows, None)?;
+                            let go = &mut || keep_going();
+                            if !render::composite_band_until(
+                                &mut src, frame, tables, &mut img, rows, None, go,
+                            )? {
+                                stopped.store(true, Ordering::Relaxed);
+                                return Ok(());
+                            }
                         }
                     })
                 })
@@ -368,7 +442,7 @@ impl Renderer {
             }
             Ok(())
         })?;
-        Ok(frame)
+        Ok((!stopped.load(Ordering::Relaxed)).then_some(frame))
     }
 
     /// Warps the intermediate image left by [`Renderer::composite`] through `view` (that
