@@ -1,12 +1,14 @@
 //! The render thread: owns both levels of the volume, re-encodes them when the
 //! classification changes, and renders the newest request.
 //!
-//! Progressive refinement (after Ryan 1992): the window asks for a **preview** (the
-//! half-resolution copy) on every input and for the **full** level once input stops.
-//! Requests carry a generation number; the window bumps the shared `latest` counter on
-//! every input, and a full-level frame in progress checks it before each slice
-//! ([`crate::render::Interruptible`]), so new input interrupts refinement at the next
-//! slice. Previews are never interrupted (they take a few milliseconds).
+//! Progressive refinement (after Ryan 1992): the window asks for a **preview** (level 1
+//! of the core's level-of-detail pyramid, [`shearwarp_core::lod`]) on every input and
+//! for the **full** level once input stops. The level keeps the full volume's opacity
+//! unit and framing, so it lands in the same place equally bright with the same
+//! transfer function. Requests carry a generation number; the window bumps the shared
+//! `latest` counter on every input, and a full-level frame in progress checks it before
+//! each slice (the core's `composite_band_until`), so new input interrupts refinement at
+//! the next slice. Previews are never interrupted (they take a few milliseconds).
 //!
 //! After a window/level change only the axis copy the view needs is re-encoded
 //! ([`crate::classifier::LevelRle`]): synchronously for the preview level (a few
@@ -14,9 +16,8 @@
 //! works.
 
 use crate::classifier::{Classifier, Encoding, LevelRle};
-use crate::downsample::{self, Half};
 use crate::preset::{self, PRESETS};
-use crate::render::{self, Compositor, ImageMap, Interruptible};
+use crate::render::{self, Compositor, ImageMap};
 use crate::state::{self, ViewState};
 use shearwarp_core::composite::Mode;
 use shearwarp_core::rle::Axis;
@@ -34,7 +35,7 @@ use std::time::{Duration, Instant};
 /// Which level a frame is rendered from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Quality {
-    /// The half-resolution copy.
+    /// Level 1 of the pyramid (half resolution).
     Preview,
     /// The volume as loaded.
     Full,
@@ -101,23 +102,24 @@ pub struct Settings {
 /// The volume and its derived data.
 pub struct Scene {
     pub full: Arc<RawVolume>,
-    pub half: Half,
+    /// Level 1 of the level-of-detail pyramid.
+    pub preview: RawVolume,
     /// Raw range the presets are expressed over (of the full volume).
     pub range: (u16, u16),
     pub settings: Settings,
 }
 
 impl Scene {
-    /// Prepares `raw` (builds the half-resolution copy).
-    pub fn new(raw: RawVolume, settings: Settings) -> Scene {
-        let half = downsample::half(&raw);
+    /// Prepares `raw` (builds level 1 of its level-of-detail pyramid).
+    pub fn new(raw: RawVolume, settings: Settings) -> Result<Scene, Error> {
+        let (preview, _) = scene::lod(&raw, 1)?;
         let range = preset::data_range(&raw);
-        Scene {
+        Ok(Scene {
             full: Arc::new(raw),
-            half,
+            preview,
             range,
             settings,
-        }
+        })
     }
 
     /// The full-level classification of `view`.
@@ -126,27 +128,6 @@ impl Scene {
             opacity: preset::opacity_points(&PRESETS[view.preset], view.wl, self.range),
             gradient: None,
             min_opacity: self.settings.min_opacity,
-        }
-    }
-
-    /// Ratio of the smallest spacings, half level over full.
-    fn spacing_ratio(&self) -> f64 {
-        let min = |s: [f64; 3]| s.into_iter().fold(f64::INFINITY, f64::min);
-        min(self.half.volume.spacing) / min(self.full.spacing)
-    }
-
-    /// The half-level classification: the same opacity per mm (composite) or the same
-    /// window (MIP, where opacity only selects voxels).
-    pub fn preview_classification(&self, view: &ViewState) -> Classification {
-        let c = self.classification(view);
-        if view.is_mip() {
-            return c;
-        }
-        let r = self.spacing_ratio();
-        Classification {
-            opacity: preset::opacity_for_coarser_grid(&c.opacity, r, self.range),
-            gradient: None,
-            min_opacity: preset::opacity_for_step(c.min_opacity, r).min(0.999),
         }
     }
 
@@ -222,9 +203,9 @@ pub fn spawn(
     let (done_tx, done_rx) = mpsc::channel::<Done>();
     let handle = std::thread::spawn(move || {
         let grid = shearwarp_core::classify::Grid::new(scene.full.dims, scene.full.spacing);
-        let low = Classifier::new(Arc::new(scene.half.volume.clone()));
-        let (comp, low_classifier) = match (grid, low) {
-            (Ok(g), Ok(low)) => (Compositor::new(&g, scene.settings.threads), low),
+        let low = Classifier::new(Arc::new(scene.preview.clone()));
+        let (comp, low_classifier, full_grid) = match (grid, low) {
+            (Ok(g), Ok(low)) => (Compositor::new(&g, scene.settings.threads), low, g),
             (Err(e), _) | (_, Err(e)) => {
                 if let Ok(job) = job_rx.recv() {
                     let _ = done_tx.send(Done {
@@ -235,7 +216,10 @@ pub fn spawn(
                 return;
             }
         };
-        let low = LevelRle::new(low_classifier.grid(), low_classifier.range());
+        let low = LevelRle::new(
+            low_classifier.grid().as_level_of(&full_grid),
+            low_classifier.range(),
+        );
         let mut engine = Engine {
             scene,
             comp,
@@ -302,7 +286,7 @@ impl Engine {
     }
 
     fn preview(&mut self, job: &Job) -> Result<Outcome, Error> {
-        let class = self.scene.preview_classification(&job.view);
+        let class = self.scene.classification(&job.view);
         let camera = self.scene.camera(&job.view);
         let axis = Factorization::new(&self.low.grid, &camera)?.axis;
         let encode_ms = self.low.ensure(&self.low_classifier, &class, axis)?;
@@ -310,10 +294,9 @@ impl Engine {
         let map = ImageMap {
             zoom: job.view.zoom,
             pan: job.view.pan,
-            reference_diagonal: self.full_diagonal()?,
-            offset_mm: self.scene.half.offset_mm,
+            ..ImageMap::identity(&self.low.grid)
         };
-        let src = Interruptible::new(self.low.volume()?, None);
+        let src = self.low.volume()?;
         let (pixels, shadows, note) = draw(
             &mut self.comp,
             &self.scene,
@@ -321,6 +304,7 @@ impl Engine {
             &src,
             self.low.range,
             &map,
+            &|| true,
         )?;
         Ok(Outcome::Frame {
             pixels,
@@ -329,11 +313,6 @@ impl Engine {
             shadows,
             note,
         })
-    }
-
-    fn full_diagonal(&self) -> Result<f64, Error> {
-        let g = shearwarp_core::classify::Grid::new(self.scene.full.dims, self.scene.full.spacing)?;
-        Ok(g.diagonal())
     }
 
     /// `Ok(None)` while the full level is being (re-)encoded. Only the copy of the
@@ -407,7 +386,8 @@ impl Engine {
             pan: job.view.pan,
             ..ImageMap::identity(&full.grid)
         };
-        let src = Interruptible::new(full.volume()?, Some((&*self.latest, job.generation)));
+        let src = full.volume()?;
+        let (latest, generation) = (&*self.latest, job.generation);
         let (pixels, shadows, note) = draw(
             &mut self.comp,
             &self.scene,
@@ -415,6 +395,7 @@ impl Engine {
             &src,
             full.range,
             &map,
+            &|| latest.load(Ordering::Relaxed) == generation,
         )?;
         Ok(Some(Outcome::Frame {
             pixels,
@@ -438,14 +419,20 @@ fn draw<S: shearwarp_core::source::SliceSource + Clone + Send>(
     src: &S,
     range: (u16, u16),
     map: &ImageMap,
+    keep_going: &(dyn Fn() -> bool + Sync),
 ) -> Result<Drawn, Error> {
     let camera = scene.camera(view);
     let look = scene.look(view, range, true)?;
-    match comp.render(src, &camera, &look, map) {
-        Ok(px) => Ok((px, look.shadows, None)),
+    let cancelled = || Error::Source {
+        reason: render::CANCELLED,
+    };
+    match comp.render_until(src, &camera, &look, map, keep_going) {
+        Ok(px) => Ok((px.ok_or_else(cancelled)?, look.shadows, None)),
         Err(Error::BadParameter { reason }) if look.shadows && reason.starts_with("shadows") => {
             let plain = scene.look(view, range, false)?;
-            let px = comp.render(src, &camera, &plain, map)?;
+            let px = comp
+                .render_until(src, &camera, &plain, map, keep_going)?
+                .ok_or_else(cancelled)?;
             Ok((
                 px,
                 false,

@@ -673,9 +673,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             ert: cli.ert,
             lighting: lighting.clone(),
         },
-    );
+    )?;
     let range = scene.range;
-    let half_dims = scene.half.volume.dims;
+    let half_dims = scene.preview.dims;
     println!(
         "{name}: {}x{}x{} {}, range {}..{}; preview level {}x{}x{}; loaded in {:.0} ms; {} threads",
         dims[0],

@@ -227,32 +227,6 @@ pub fn color_points(preset: &Preset, range: (u16, u16)) -> Vec<(f64, [u8; 3])> {
         .collect()
 }
 
-/// Opacity per `ratio` smallest spacings from opacity per one: `1 − (1 − a)^ratio`.
-pub fn opacity_for_step(a: f64, ratio: f64) -> f64 {
-    1.0 - (1.0 - a.clamp(0.0, 1.0)).powf(ratio)
-}
-
-/// Resamples opacity breakpoints for a coarser grid whose smallest spacing is `ratio`
-/// times the original one, so that the same material keeps the same opacity per mm:
-/// each breakpoint, plus 512 evenly spaced samples over `range` (every value for 8-bit
-/// data), is mapped through [`opacity_for_step`]. The core interprets opacities per
-/// unit of the smallest spacing of the grid it classifies.
-pub fn opacity_for_coarser_grid(
-    points: &[(f64, f64)],
-    ratio: f64,
-    range: (u16, u16),
-) -> Vec<(f64, f64)> {
-    let (lo, span) = lo_span(range);
-    let n = 512;
-    let mut xs: Vec<f64> = points.iter().map(|p| p.0).collect();
-    xs.extend((0..=n).map(|i| lo + span * i as f64 / n as f64));
-    xs.sort_by(f64::total_cmp);
-    xs.dedup();
-    xs.iter()
-        .map(|&x| (x, opacity_for_step(eval(points, x), ratio)))
-        .collect()
-}
-
 /// Piecewise-linear evaluation, constant beyond the ends (as the core does).
 pub fn eval(points: &[(f64, f64)], x: f64) -> f64 {
     let Some(first) = points.first() else {
@@ -372,21 +346,5 @@ mod tests {
         let mut spike = vec![0u16; 100_000];
         spike[0] = 9;
         assert_eq!(u16_range(&spike), (0, 9));
-    }
-
-    #[test]
-    fn coarser_grid_keeps_opacity_per_mm() {
-        assert_eq!(opacity_for_step(0.0, 2.0), 0.0);
-        assert_eq!(opacity_for_step(1.0, 2.0), 1.0);
-        assert!((opacity_for_step(0.5, 2.0) - 0.75).abs() < 1e-12);
-        // Two steps of a through the fine grid = one of a' through the coarse one.
-        let pts = opacity_points(&PRESETS[0], PRESETS[0].wl, (0, 255));
-        let c = opacity_for_coarser_grid(&pts, 2.0, (0, 255));
-        assert!(c.windows(2).all(|w| w[0].0 < w[1].0));
-        for v in [0.0, 50.0, 100.0, 101.5, 180.0, 255.0] {
-            let a = eval(&pts, v);
-            let a2 = eval(&c, v);
-            assert!(((1.0 - a) * (1.0 - a) - (1.0 - a2)).abs() < 2e-3, "{v}");
-        }
     }
 }

@@ -1,5 +1,6 @@
-//! Rendering for the viewer: the file frontend's threaded renderer, an interruptible
-//! slice source, and zoom/pan folded into the final warp.
+//! Rendering for the viewer: the file frontend's threaded renderer (interruptible before
+//! every slice through the core's `composite_band_until`), and zoom/pan folded into the
+//! final warp.
 //!
 //! **Zoom and pan.** The core's camera always frames the whole volume (the shorter
 //! image side spans its diagonal). The viewer keeps that camera at the window's size and
@@ -12,60 +13,22 @@
 //! At zoom 1 and no pan the map is the core's own, bit for bit, so the frame equals the
 //! file frontend's.
 //!
-//! The same composition places the half-resolution level: its camera frames its own
-//! (slightly different) diagonal and centre, and the map rescales and shifts it so
-//! that every object point lands on the same window pixel as at full resolution.
+//! The same composition places a coarser level of detail: the core's pyramid levels are
+//! centred like the full volume and keep its framing ([`Grid::as_level_of`]), so the
+//! map is the same for every level.
 
 use shearwarp_core::classify::Grid;
-use shearwarp_core::rle::{Axis, RleSlice};
 use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::{self, Camera, Factorization};
 use shearwarp_core::Error;
 use shearwarp_file::scene::{Look, Renderer};
-use std::sync::atomic::{AtomicU64, Ordering};
 
-/// The reason an [`Interruptible`] source gives when it stops a frame.
+/// The reason a full-quality frame gives when new input interrupted it.
 pub const CANCELLED: &str = "cancelled";
 
 /// True if `e` is the error of an interrupted frame.
 pub fn is_cancelled(e: &Error) -> bool {
     matches!(e, Error::Source { reason } if *reason == CANCELLED)
-}
-
-/// A slice source that stops the frame at the next slice once `latest` no longer holds
-/// `generation` (the viewer bumps `latest` on every input).
-#[derive(Clone, Copy, Debug)]
-pub struct Interruptible<'a, S> {
-    inner: S,
-    stop: Option<(&'a AtomicU64, u64)>,
-}
-
-impl<'a, S> Interruptible<'a, S> {
-    /// Wraps `inner`; with `stop = Some((latest, generation))` every slice first checks
-    /// that `latest` still equals `generation`.
-    pub fn new(inner: S, stop: Option<(&'a AtomicU64, u64)>) -> Self {
-        Interruptible { inner, stop }
-    }
-}
-
-impl<S: SliceSource> SliceSource for Interruptible<'_, S> {
-    fn grid(&self) -> Grid {
-        self.inner.grid()
-    }
-
-    fn with_slice<R>(
-        &mut self,
-        axis: Axis,
-        k: usize,
-        f: impl FnOnce(&RleSlice<'_>) -> R,
-    ) -> Result<R, Error> {
-        if let Some((latest, generation)) = self.stop {
-            if latest.load(Ordering::Relaxed) != generation {
-                return Err(Error::Source { reason: CANCELLED });
-            }
-        }
-        self.inner.with_slice(axis, k, f)
-    }
 }
 
 /// Where the rendered level goes in the window.
@@ -75,11 +38,11 @@ pub struct ImageMap {
     pub zoom: f64,
     /// Shift of the image in window pixels (right, down).
     pub pan: [f64; 2],
-    /// Diagonal (mm) of the full-resolution grid: the framing every level is matched
-    /// to.
+    /// Diagonal (mm) the full-resolution grid is framed on: the framing every level is
+    /// matched to.
     pub reference_diagonal: f64,
-    /// Offset (mm) from the full-resolution grid's centred coordinates to this level's
-    /// (see [`crate::downsample::Half::offset_mm`]); zero for the full level.
+    /// Offset (mm) from the full-resolution grid's centred coordinates to this level's;
+    /// zero for the core's centred levels of detail.
     pub offset_mm: [f64; 3],
 }
 
@@ -89,7 +52,7 @@ impl ImageMap {
         ImageMap {
             zoom: 1.0,
             pan: [0.0; 2],
-            reference_diagonal: grid.diagonal(),
+            reference_diagonal: grid.frame_diagonal(),
             offset_mm: [0.0; 3],
         }
     }
@@ -99,7 +62,7 @@ impl ImageMap {
     pub fn window_to_level(&self, grid: &Grid, camera: &Camera) -> (f64, [f64; 2]) {
         let side = camera.width.min(camera.height) as f64;
         let k_ref = side / self.reference_diagonal;
-        let k_level = side / grid.diagonal();
+        let k_level = side / grid.frame_diagonal();
         let a = k_level / (self.zoom * k_ref);
         let c = [camera.width as f64 * 0.5, camera.height as f64 * 0.5];
         let r = view::rotation(camera.rotate_x, camera.rotate_y);
@@ -160,20 +123,41 @@ impl Compositor {
         look: &Look,
         map: &ImageMap,
     ) -> Result<Vec<[u8; 4]>, Error> {
+        self.render_until(source, camera, look, map, &|| true)?
+            .ok_or(Error::Source { reason: CANCELLED })
+    }
+
+    /// As [`Compositor::render`], asking `keep_going` before every slice; `None` if it
+    /// said no and the frame was abandoned.
+    pub fn render_until<S: SliceSource + Clone + Send>(
+        &mut self,
+        source: &S,
+        camera: &Camera,
+        look: &Look,
+        map: &ImageMap,
+        keep_going: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Option<Vec<[u8; 4]>>, Error> {
         let grid = source.grid();
-        let frame = self.renderer.composite(&mut source.clone(), camera, look)?;
-        self.renderer.warp(&map.apply(&grid, camera, &frame.view))
+        let Some(frame) =
+            self.renderer
+                .composite_until(&mut source.clone(), camera, look, keep_going)?
+        else {
+            return Ok(None);
+        };
+        self.renderer
+            .warp(&map.apply(&grid, camera, &frame.view))
+            .map(Some)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::downsample;
     use shearwarp_core::composite::Mode;
     use shearwarp_core::shade::Lighting;
     use shearwarp_file::scene::{self, Classification, Renderer};
     use shearwarp_file::volume::{RawVolume, Voxels};
+    use std::sync::atomic::{AtomicU64, Ordering};
 
     /// An off-centre ball in an odd-sized, anisotropic volume.
     fn ball() -> RawVolume {
@@ -318,9 +302,9 @@ mod tests {
     #[test]
     fn half_level_lands_where_the_full_level_does() {
         let raw = ball();
-        let h = downsample::half(&raw);
+        let (h, _) = scene::lod(&raw, 1).unwrap();
         let full = scene::encode(&raw, &class()).unwrap();
-        let low = scene::encode(&h.volume, &class()).unwrap();
+        let low = scene::encode(&h, &class()).unwrap().as_level(&full.grid);
         let l = look(Mode::Mip, false);
         let mut comp = Compositor::new(&full.grid, 2);
         for c in [cam(0.0, 0.0), cam(-70.0, -35.0), cam(33.0, 120.0)] {
@@ -331,13 +315,7 @@ mod tests {
                     ..ImageMap::identity(&full.grid)
                 };
                 let a = comp.render(&full.volume().unwrap(), &c, &l, &map).unwrap();
-                let low_map = ImageMap {
-                    offset_mm: h.offset_mm,
-                    ..map
-                };
-                let b = comp
-                    .render(&low.volume().unwrap(), &c, &l, &low_map)
-                    .unwrap();
+                let b = comp.render(&low.volume().unwrap(), &c, &l, &map).unwrap();
                 let (ca, cb) = (centroid(&a, c.width), centroid(&b, c.width));
                 for k in 0..2 {
                     assert!((ca[k] - cb[k]).abs() < 0.3 * zoom, "{c:?} {ca:?} {cb:?}");
@@ -347,7 +325,7 @@ mod tests {
     }
 
     #[test]
-    fn interruptible_source_stops_when_the_generation_moves_on() {
+    fn frames_stop_when_the_generation_moves_on() {
         let raw = ball();
         let enc = scene::encode(&raw, &class()).unwrap();
         let latest = AtomicU64::new(7);
@@ -355,12 +333,24 @@ mod tests {
         let l = look(Mode::Composite, false);
         let mut comp = Compositor::new(&enc.grid, 2);
         let id = ImageMap::identity(&enc.grid);
-        let live = Interruptible::new(enc.volume().unwrap(), Some((&latest, 7)));
-        assert!(comp.render(&live, &c, &l, &id).is_ok());
+        let vol = enc.volume().unwrap();
+        let live = || latest.load(Ordering::Relaxed) == 7;
+        assert!(comp
+            .render_until(&vol, &c, &l, &id, &live)
+            .unwrap()
+            .is_some());
         latest.store(8, Ordering::Relaxed);
-        let e = comp.render(&live, &c, &l, &id).unwrap_err();
-        assert!(is_cancelled(&e), "{e:?}");
-        let unchecked = Interruptible::new(enc.volume().unwrap(), None);
-        assert!(comp.render(&unchecked, &c, &l, &id).is_ok());
+        assert!(comp
+            .render_until(&vol, &c, &l, &id, &live)
+            .unwrap()
+            .is_none());
+        // Stopping half way through: the check runs before every slice.
+        let calls = AtomicU64::new(0);
+        let half = || calls.fetch_add(1, Ordering::Relaxed) < 10;
+        let one = Compositor::new(&enc.grid, 1)
+            .render_until(&vol, &c, &l, &id, &half)
+            .unwrap();
+        assert!(one.is_none());
+        assert_eq!(calls.load(Ordering::Relaxed), 11);
     }
 }
