@@ -137,6 +137,11 @@ impl<'a> Intermediate<'a> {
         self.pixels
     }
 
+    /// Opaque-pixel links of the held scanlines (non-zero: opaque), row-major.
+    pub(crate) fn links(&self) -> &[u16] {
+        self.links
+    }
+
     /// Pixels and links of the held scanline starting at pixel index `line` (relative to
     /// the band), `width` long.
     pub(crate) fn scanline_mut(&mut self, line: usize, width: usize) -> (&mut [Rgba], &mut [u16]) {

@@ -232,7 +232,8 @@ pub fn composite_slice(
     let ys = AxisMap::new(ss.scale, ss.origin[1]);
     let mut wx = [0u32; MAX_TAPS];
     let mut wy = [0u32; MAX_TAPS];
-    for v in img.first_row()..img.first_row() + img.pixels().len() / width.max(1) {
+    let rows_held = img.pixels().len() / width.max(1);
+    for v in img.first_row()..img.first_row() + rows_held {
         let (j0, count) = ys.taps(v as i64, &mut wy);
         if j0 + count as i64 <= 0 || j0 >= nj as i64 {
             continue;
@@ -257,7 +258,23 @@ pub fn composite_slice(
                 }
                 let (runs, voxels) = slice.scanline(j as usize);
                 row.fill(runs, voxels, tables, ONE, j, None, None);
-                slots[s] = filter_row(out, &row, runs, &xs, ni, &mut wx);
+                // The band's scanlines that read row j: a pixel opaque in all of them is
+                // never composited again, so its filtered value is not needed.
+                let readers = if tables.mode == Mode::Composite {
+                    let (va, vb) = ys.pixels_of(j as usize, j as usize + 1);
+                    let band = img.first_row() as i64..(img.first_row() + rows_held) as i64;
+                    let va = va.clamp(band.start, band.end);
+                    let vb = vb.clamp(band.start, band.end);
+                    Some(Readers {
+                        links: img.links(),
+                        first: (va - band.start) as usize,
+                        count: (vb - va) as usize,
+                        width,
+                    })
+                } else {
+                    None
+                };
+                slots[s] = filter_row(out, &row, runs, &xs, ni, &mut wx, readers.as_ref());
                 slots[s].j = j;
             }
             lo = lo.min(slots[s].lo);
@@ -315,8 +332,31 @@ pub fn composite_slice(
     Ok(())
 }
 
+/// The scanlines of a band that read one voxel row: `count` rows from band row
+/// `first`, with the band's opaque-pixel links.
+struct Readers<'a> {
+    links: &'a [u16],
+    first: usize,
+    count: usize,
+    width: usize,
+}
+
+impl Readers<'_> {
+    /// True if pixel `u` is opaque in every reading scanline.
+    #[inline]
+    fn all_opaque(&self, u: usize) -> bool {
+        self.count > 0
+            && (0..self.count).all(|r| {
+                self.links
+                    .get((self.first + r) * self.width + u)
+                    .is_some_and(|&l| l != 0)
+            })
+    }
+}
+
 /// Filters the shaded voxel row `row` horizontally into `out` (zero on entry) over the
-/// pixels its non-transparent runs reach; returns the written range.
+/// pixels its non-transparent runs reach, except pixels every reader has made opaque;
+/// returns the written range.
 fn filter_row(
     out: &mut [Rgba],
     row: &Row<'_>,
@@ -324,6 +364,7 @@ fn filter_row(
     xs: &AxisMap,
     ni: usize,
     wx: &mut [u32; MAX_TAPS],
+    readers: Option<&Readers<'_>>,
 ) -> Slot {
     let width = out.len() as i64;
     let mut slot = Slot {
@@ -340,6 +381,9 @@ fn filter_row(
             continue;
         }
         for u in ua..ub {
+            if readers.is_some_and(|r| r.all_opaque(u as usize)) {
+                continue;
+            }
             let (first, n) = xs.taps(u, wx);
             let mut acc = [0u32; 4];
             for (t, &w) in wx[..n].iter().enumerate() {
