@@ -293,19 +293,35 @@ impl<'b> Row<'b> {
                     shade_run(&mut self.buf[a + 1..b + 1], src, a, t, scale, j, shadow);
                 }
                 Some(n) => {
-                    let mut c = a;
-                    while c < b {
-                        if !n.voxel(c) {
-                            c += 1;
-                            continue;
+                    // Shade only the voxel intervals that open pixels of the reading
+                    // scanlines reach (opaque runs are jumped through their links).
+                    let mut runs0 = n.voxel_runs(0, a, b).peekable();
+                    let mut runs1 = n.voxel_runs(1, a, b).peekable();
+                    let mut pending: Option<(usize, usize)> = None;
+                    loop {
+                        let next = match (runs0.peek(), runs1.peek()) {
+                            (Some(x), Some(y)) if x.0 <= y.0 => runs0.next(),
+                            (Some(_), Some(_)) => runs1.next(),
+                            (Some(_), None) => runs0.next(),
+                            (None, _) => runs1.next(),
+                        };
+                        let flush = match (pending, next) {
+                            (Some(p), Some(q)) if q.0 <= p.1 => {
+                                pending = Some((p.0, p.1.max(q.1)));
+                                None
+                            }
+                            (p, q) => {
+                                pending = q;
+                                p
+                            }
+                        };
+                        if let Some((c, d)) = flush {
+                            let src = &voxels[base + (c - a)..base + (d - a)];
+                            shade_run(&mut self.buf[c + 1..d + 1], src, c, t, scale, j, shadow);
                         }
-                        let mut d = c + 1;
-                        while d < b && n.voxel(d) {
-                            d += 1;
+                        if pending.is_none() {
+                            break;
                         }
-                        let src = &voxels[base + (c - a)..base + (d - a)];
-                        shade_run(&mut self.buf[c + 1..d + 1], src, c, t, scale, j, shadow);
-                        c = d;
                     }
                 }
             }
@@ -323,14 +339,56 @@ pub(crate) struct Needed<'a> {
     shift: i64,
 }
 
-impl Needed<'_> {
-    #[inline(always)]
-    fn voxel(&self, i: usize) -> bool {
-        let u = i as i64 + self.shift;
-        self.lines.iter().flatten().any(|links| {
-            let open = |p: i64| p >= 0 && (p as usize) < links.len() && links[p as usize] == 0;
-            open(u) || open(u + 1)
-        })
+impl<'a> Needed<'a> {
+    /// Voxel intervals within `[a, b)` that non-opaque pixels of scanline `line` read,
+    /// in increasing order: an open pixel run `[p, q)` reads voxels `[p − shift − 1, q −
+    /// shift)`.
+    fn voxel_runs(&self, line: usize, a: usize, b: usize) -> OpenRuns<'a> {
+        let shift = self.shift;
+        let links = self.lines[line].unwrap_or(&[]);
+        let lo = (a as i64 + shift).clamp(0, links.len() as i64) as usize;
+        let hi = (b as i64 + shift + 1).clamp(0, links.len() as i64) as usize;
+        OpenRuns {
+            links,
+            pos: lo,
+            end: hi,
+            shift,
+            voxels: (a, b),
+        }
+    }
+}
+
+/// Iterator behind [`Needed::voxel_runs`].
+pub(crate) struct OpenRuns<'a> {
+    links: &'a [u16],
+    pos: usize,
+    end: usize,
+    shift: i64,
+    voxels: (usize, usize),
+}
+
+impl Iterator for OpenRuns<'_> {
+    type Item = (usize, usize);
+    #[inline]
+    fn next(&mut self) -> Option<(usize, usize)> {
+        loop {
+            // Jump over opaque pixels (links are path-compressed, so this is short).
+            while self.pos < self.end && self.links[self.pos] != 0 {
+                self.pos += self.links[self.pos] as usize;
+            }
+            if self.pos >= self.end {
+                return None;
+            }
+            let p = self.pos;
+            while self.pos < self.end && self.links[self.pos] == 0 {
+                self.pos += 1;
+            }
+            let v0 = (p as i64 - self.shift - 1).max(self.voxels.0 as i64) as usize;
+            let v1 = (self.pos as i64 - self.shift).min(self.voxels.1 as i64) as usize;
+            if v0 < v1 {
+                return Some((v0, v1));
+            }
+        }
     }
 }
 
