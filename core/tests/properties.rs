@@ -27,7 +27,7 @@ use shearwarp_core::shadow;
 use shearwarp_core::source::{RleVolume, SliceSource};
 use shearwarp_core::swv::{self, StreamSource};
 use shearwarp_core::view::{self, Camera};
-use shearwarp_core::warp::FrameBuffer;
+use shearwarp_core::warp::{self, FrameBuffer};
 use shearwarp_core::Error;
 
 /// Largest side of the random volumes.
@@ -453,6 +453,66 @@ proptest! {
                 }
             }
         }
+    }
+
+    /// Perspective views of any volume, with any field of view, either succeed within
+    /// opacity or are refused with a parameter error (too strong a perspective), and
+    /// never panic; threads' bands give the same image as one band.
+    #[test]
+    fn perspective_stays_within_opacity(
+        vol in volume(),
+        class in classification(),
+        v in view_params(),
+        fov in prop_oneof![1.0..=150.0f64, Just(90.0), Just(150.0)],
+    ) {
+        let enc = classify_and_encode(&vol, &class);
+        let mut src = enc.volume();
+        let grid = src.grid();
+        let mut plain = v.clone();
+        plain.depth = None;
+        plain.shadows = false;
+        plain.camera.width = plain.camera.width.min(300);
+        plain.camera.height = plain.camera.height.min(300);
+        let s = settings(&plain, &enc.color);
+        let mut shade = Box::new(ShadeTable::UNSHADED);
+        let frame = match Frame::perspective(&grid, &plain.camera, fov, &s, &mut shade) {
+            Ok(f) => f,
+            Err(Error::BadParameter { .. }) => return Ok(()),
+            Err(e) => return Err(TestCaseError::fail(format!("frame failed: {e:?}"))),
+        };
+        let [iw, ih] = frame.view.intermediate;
+        let tables = frame.tables(s.color, &shade, None);
+        let mut rows = vec![[0u16; 4]; composite::rows_needed(&frame.view)];
+        let mut whole = vec![[0u16; 4]; iw * ih];
+        let mut links = vec![0u16; iw * ih];
+        {
+            let mut img = Intermediate::new(iw, ih, &mut whole, &mut links)
+                .map_err(|e| TestCaseError::fail(format!("intermediate: {e:?}")))?;
+            render::composite_band(&mut src, &frame, &tables, &mut img, &mut rows, None)
+                .map_err(|e| TestCaseError::fail(format!("composite failed: {e:?}")))?;
+        }
+        for (i, p) in whole.iter().enumerate() {
+            prop_assert!(p[3] as u32 <= ONE, "pixel {i}: alpha {} > 1.0 ({p:?})", p[3]);
+            for c in 0..3 {
+                prop_assert!(p[c] <= p[3] || plain.mip, "pixel {i}: colour above alpha ({p:?})");
+            }
+        }
+        // Bands of 3 scanlines give the same pixels.
+        let mut banded = vec![[0u16; 4]; iw * ih];
+        let mut blinks = vec![0u16; iw * ih];
+        for (b, (p, l)) in banded.chunks_mut(3 * iw).zip(blinks.chunks_mut(3 * iw)).enumerate() {
+            let n = p.len() / iw;
+            let mut img = Intermediate::band(iw, ih, 3 * b, n, p, l)
+                .map_err(|e| TestCaseError::fail(format!("band: {e:?}")))?;
+            render::composite_band(&mut src, &frame, &tables, &mut img, &mut rows, None)
+                .map_err(|e| TestCaseError::fail(format!("band composite failed: {e:?}")))?;
+        }
+        prop_assert!(banded == whole, "bands differ from the whole image");
+        let mut out = vec![[0u8; 4]; plain.camera.width * plain.camera.height];
+        let mut row = vec![[0u8; 4]; plain.camera.width];
+        let mut sink = FrameBuffer { width: plain.camera.width, pixels: &mut out };
+        warp::warp(&whole, &frame.view, &mut row, &mut sink)
+            .map_err(|e| TestCaseError::fail(format!("warp failed: {e:?}")))?;
     }
 
     /// The `.swv` stream renders bit-identically to the in-memory volume, for any read
