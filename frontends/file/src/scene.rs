@@ -49,6 +49,17 @@ fn opacity_points(p: &[(f64, f64)]) -> Vec<(f64, [f64; 1])> {
 
 /// Classifies and encodes `raw`.
 pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    encode_threads(raw, class, cores)
+}
+
+/// As [`encode`], building the three axis copies on up to `threads` threads (1: all on
+/// the calling thread, as the single-thread benchmark measures it).
+pub fn encode_threads(
+    raw: &RawVolume,
+    class: &Classification,
+    threads: usize,
+) -> Result<Encoded, Error> {
     let grid = Grid::new(raw.dims, raw.spacing)?;
     let scalars = match &raw.voxels {
         Voxels::U8(d) => Scalars::U8(d),
@@ -71,24 +82,60 @@ pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error>
     let threshold = (class.min_opacity * 255.0).floor() as u8;
     let mut dense = vec![Voxel::default(); grid.voxel_count()];
     classify::classify(&grid, scalars, &table, gtable.as_ref(), &mut dense)?;
+    // Every axis copy holds the same visible voxels; runs are allocated for the worst
+    // case (`ni + 2` per scanline, zero pages until written) and trimmed, so no counting
+    // pass is needed. The three copies are encoded on up to three threads.
+    let visible = dense
+        .iter()
+        .filter(|v| rle::is_visible(v, threshold))
+        .count();
+    let encode_axis = |axis: Axis| -> Result<AxisArrays, Error> {
+        let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+        let mut runs = vec![0u8; nj * nk * (ni + 2)];
+        let mut voxels = vec![Voxel::default(); visible];
+        let mut scans = vec![ScanIndex::default(); nj * nk + 1];
+        let used = {
+            let enc = rle::encode(
+                &dense,
+                &grid,
+                axis,
+                threshold,
+                &mut runs,
+                &mut voxels,
+                &mut scans,
+            )?;
+            enc.parts().0.len()
+        };
+        runs.truncate(used);
+        runs.shrink_to_fit();
+        Ok((runs, voxels, scans))
+    };
+    let parts: Vec<Result<_, Error>> = if threads <= 1 {
+        Axis::ALL.into_iter().map(encode_axis).collect()
+    } else {
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = Axis::ALL
+                .into_iter()
+                .map(|axis| scope.spawn(move || encode_axis(axis)))
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| {
+                    h.join().unwrap_or(Err(Error::Source {
+                        reason: "an encoding thread panicked",
+                    }))
+                })
+                .collect()
+        })
+    };
     let mut runs: [Vec<u8>; 3] = Default::default();
     let mut voxels: [Vec<Voxel>; 3] = Default::default();
     let mut scans: [Vec<ScanIndex>; 3] = Default::default();
-    for axis in Axis::ALL {
-        let a = axis as usize;
-        let sz = rle::measure(&dense, &grid, axis, threshold)?;
-        runs[a] = vec![0; sz.runs];
-        voxels[a] = vec![Voxel::default(); sz.voxels];
-        scans[a] = vec![ScanIndex::default(); sz.scans];
-        rle::encode(
-            &dense,
-            &grid,
-            axis,
-            threshold,
-            &mut runs[a],
-            &mut voxels[a],
-            &mut scans[a],
-        )?;
+    for (a, part) in parts.into_iter().enumerate() {
+        let (r, v, s) = part?;
+        runs[a] = r;
+        voxels[a] = v;
+        scans[a] = s;
     }
     Ok(Encoded {
         grid,
@@ -99,6 +146,9 @@ pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error>
         scans,
     })
 }
+
+/// Runs, voxels and scanline index of one axis copy.
+type AxisArrays = (Vec<u8>, Vec<Voxel>, Vec<ScanIndex>);
 
 /// Level `level` of `raw`'s level-of-detail pyramid (0: `raw` itself), built with the
 /// core's centred 2×2×2 means ([`shearwarp_core::lod`]); returns the volume and its grid,
