@@ -240,7 +240,7 @@ impl fmt::Display for LoadError {
                 } else {
                     write!(
                         f,
-                        "{}: unknown volume format (not DICOM, NIfTI, NRRD or MetaImage, and no \
+                        "{}: unknown volume format (not DICOM, NIfTI, NRRD, MetaImage or .den, and no \
                          JSON sidecar {} for raw data)",
                         data.display(),
                         sidecar.display()
@@ -358,6 +358,8 @@ pub enum Format {
     Nrrd,
     /// MetaImage `.mhd` or `.mha`.
     MetaImage,
+    /// VolPack's `.den` density map.
+    Den,
 }
 
 /// Decides the format of `path`; `LoadError::Format` for an unknown one.
@@ -382,6 +384,9 @@ pub fn detect_format(path: &Path) -> Result<Format, LoadError> {
     }
     if ends(".mhd") || ends(".mha") {
         return Ok(Format::MetaImage);
+    }
+    if ends(".den") {
+        return Ok(Format::Den);
     }
     if ends(".dcm") || ends(".dicom") || ends(".ima") {
         return Ok(Format::Dicom);
@@ -422,7 +427,7 @@ pub fn detect_format(path: &Path) -> Result<Format, LoadError> {
     Err(LoadError::Format {
         path: path.to_path_buf(),
         reason: "unknown volume format (expected a DICOM directory or file, .nii, .nii.gz, \
-                 .nrrd, .nhdr, .mhd, .mha, or raw data with a JSON sidecar)"
+                 .nrrd, .nhdr, .mhd, .mha, .den, or raw data with a JSON sidecar)"
             .into(),
     })
 }
@@ -439,6 +444,7 @@ pub fn load_volume_meta(
         Ok(Format::Nifti) => return formats::nifti::load(path),
         Ok(Format::Nrrd) => return formats::nrrd::load(path),
         Ok(Format::MetaImage) => return formats::mhd::load(path),
+        Ok(Format::Den) => return formats::den::load(path),
         // Missing files are reported by the sidecar loader below, as before.
         Ok(Format::RawJson) | Err(LoadError::Io { .. }) | Err(LoadError::Format { .. }) => {}
         Err(e) => return Err(e),
