@@ -4,6 +4,8 @@
 
 pub mod formats;
 pub mod info;
+pub mod presets;
 pub mod scene;
+pub mod tffile;
 pub mod tfspec;
 pub mod volume;

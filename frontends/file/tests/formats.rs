@@ -241,8 +241,8 @@ fn info_prints_dims_spacing_histogram_presets() {
         "spacing:",
         "values:      stored",
         "histogram",
-        "mr-default",
-        "--mode mip",
+        "--preset mr-default",
+        "--preset mip",
     ] {
         assert!(out.contains(want), "missing {want:?} in\n{out}");
     }
