@@ -121,26 +121,30 @@ impl TfSpec {
     pub fn resolve(&self, scale: &ValueScale, what: &Path) -> Result<Resolved, TfFileError> {
         let (lo, hi) = (scale.range.0 as f64, scale.range.1 as f64);
         let span = (hi - lo).max(1.0);
-        // Every unit is a linear map to stored values: v ↦ v · a + b (magnitudes: m · a).
-        let (a, b) = match self.units {
-            Units::Raw => (1.0, 0.0),
-            Units::Normalized => (span, lo),
-            Units::Hu => {
-                let Some((slope, intercept)) = scale.hu else {
-                    return Err(TfFileError {
-                        path: what.to_path_buf(),
-                        field: None,
-                        reason: "the transfer function is in Hounsfield units, but the \
-                                 volume has no HU mapping (no CT modality, no HU rescale, \
-                                 values do not look like HU); use raw or normalized units"
-                            .into(),
-                    });
-                };
-                (1.0 / slope, -intercept / slope)
+        let (slope, intercept) = match (self.units, scale.hu) {
+            (Units::Hu, None) => {
+                return Err(TfFileError {
+                    path: what.to_path_buf(),
+                    field: None,
+                    reason: "the transfer function is in Hounsfield units, but the volume has \
+                             no HU mapping (no CT modality, no HU rescale, values do not look \
+                             like HU); use raw or normalized units"
+                        .into(),
+                })
             }
+            (_, hu) => hu.unwrap_or((1.0, 0.0)),
         };
-        let value = |v: f64| v * a + b;
-        let magnitude = |m: f64| m * a;
+        // Linear maps to stored values (and of gradient magnitudes).
+        let value = |v: f64| match self.units {
+            Units::Raw => v,
+            Units::Normalized => lo + v * span,
+            Units::Hu => (v - intercept) / slope,
+        };
+        let magnitude = |m: f64| match self.units {
+            Units::Raw => m,
+            Units::Normalized => m * span,
+            Units::Hu => m / slope,
+        };
         Ok(Resolved {
             mip: self.mip,
             shading: self.shading,
@@ -183,12 +187,29 @@ impl TfSpec {
         Value::Object(m)
     }
 
-    /// Writes the schema's JSON (pretty) to `path`.
+    /// The schema's JSON as text: one field per line, in schema order, each list on
+    /// one line.
+    pub fn to_text(&self) -> String {
+        let v = self.to_json();
+        let order = [
+            "version",
+            "units",
+            "mode",
+            "shading",
+            "opacity",
+            "color",
+            "gradient_opacity",
+        ];
+        let fields: Vec<String> = order
+            .iter()
+            .filter_map(|k| Some(format!("  \"{k}\": {}", v.get(*k)?)))
+            .collect();
+        format!("{{\n{}\n}}\n", fields.join(",\n"))
+    }
+
+    /// Writes [`TfSpec::to_text`] to `path`.
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        let mut text =
-            serde_json::to_string_pretty(&self.to_json()).map_err(std::io::Error::other)?;
-        text.push('\n');
-        std::fs::write(path, text)
+        std::fs::write(path, self.to_text())
     }
 
     /// Reads a transfer-function file.
@@ -388,4 +409,87 @@ fn color_pairs(v: &Value, err: FieldErr<'_>) -> Result<Vec<(f64, [u8; 3])>, TfFi
             Ok((x, rgb))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn save_and_load_round_trip_exactly() {
+        let spec = TfSpec {
+            units: Units::Normalized,
+            mip: true,
+            shading: Some(false),
+            opacity: vec![
+                (0.1 * 3.0, 0.0),
+                (109.65, 0.1 + 0.2),
+                (145.35000000000002, 1.0),
+            ],
+            color: Some(vec![(0.0, [1, 2, 3]), (1.0 / 3.0, [0xff, 0x80, 0])]),
+            gradient_opacity: Some(vec![(0.0, 0.5), (7.25, 1.0)]),
+        };
+        let p = std::env::temp_dir().join(format!("swtf-{}.json", std::process::id()));
+        spec.save(&p).unwrap();
+        assert_eq!(TfSpec::load(&p).unwrap(), spec);
+        std::fs::remove_file(&p).unwrap();
+        let text = spec.to_text();
+        assert!(
+            text.starts_with("{\n  \"version\": 1,\n  \"units\": \"normalized\""),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let p = Path::new("t.json");
+        let e = |s: &str| {
+            TfSpec::from_json(&serde_json::from_str(s).unwrap(), p)
+                .unwrap_err()
+                .to_string()
+        };
+        assert_eq!(e("[]"), "t.json: expected a JSON object");
+        assert_eq!(
+            e(r#"{"version": 1, "opacity": [[0, 0]], "units": "mm"}"#),
+            "t.json: \"units\": expected \"raw\", \"hu\" or \"normalized\""
+        );
+        assert!(e(r#"{"version": 1, "opacity": []}"#).contains("\"opacity\": needs at least one"));
+        assert!(e(r#"{"version": 1, "opacity": [[0, 0, 1]]}"#).contains("\"opacity\"[0]: expected"));
+        assert!(
+            e(r#"{"version": 1, "opacity": [[0, 0]], "gradient_opacity": [[1, -1]]}"#)
+                .contains("\"gradient_opacity\"[0]: -1 is not a number in 0..1")
+        );
+        assert!(e(r#"{"version": 1, "opacity": [[0, 0]], "shading": 1}"#).contains("\"shading\""));
+    }
+
+    #[test]
+    fn units_resolve_linearly() {
+        let spec = TfSpec {
+            units: Units::Hu,
+            mip: false,
+            shading: None,
+            opacity: vec![(-1000.0, 0.0), (1000.0, 1.0)],
+            color: None,
+            gradient_opacity: Some(vec![(100.0, 1.0)]),
+        };
+        let scale = ValueScale {
+            range: (0, 255),
+            hu: Some((12.0, -1018.5)),
+        };
+        let r = spec.resolve(&scale, Path::new("v")).unwrap();
+        assert_eq!(r.opacity, vec![(18.5 / 12.0, 0.0), (2018.5 / 12.0, 1.0)]);
+        let mut no_hu = spec.clone();
+        no_hu.units = Units::Normalized;
+        let r2 = no_hu
+            .resolve(
+                &ValueScale {
+                    range: (10, 20),
+                    hu: None,
+                },
+                Path::new("v"),
+            )
+            .unwrap();
+        assert_eq!(r2.opacity, vec![(-9990.0, 0.0), (10010.0, 1.0)]);
+        assert_eq!(r.gradient_opacity, Some(vec![(100.0 / 12.0, 1.0)]));
+    }
 }
