@@ -50,8 +50,9 @@ enum Command {
         /// Write 16 bits per channel (from the renderer's Q15 intermediate image).
         #[arg(long)]
         png16: bool,
-        /// Render N frames turning 360/N degrees about the vertical axis (Y) from the
-        /// start view, into an animation or numbered PNGs (see --output).
+        /// Render N frames turning 360/N degrees about the volume's Y axis (vertical on
+        /// screen when --rotate-x is 0) from the start view, into an animation or
+        /// numbered PNGs (see --output).
         #[arg(long, value_name = "N")]
         turntable: Option<usize>,
         /// Turntable frame duration in milliseconds.
@@ -527,10 +528,14 @@ fn window_bounds(
         return Err(bad());
     }
     let (lo, hi) = (c - w / 2.0, c + w / 2.0);
-    Ok(match scale.hu {
+    let (lo, hi) = match scale.hu {
         Some((slope, intercept)) => ((lo - intercept) / slope, (hi - intercept) / slope),
         None => (lo, hi),
-    })
+    };
+    if !(lo.is_finite() && hi.is_finite() && hi - lo > 0.0 && (hi - lo).is_finite()) {
+        return Err(usage(format!("--window '{spec}': out of range")));
+    }
+    Ok((lo, hi))
 }
 
 /// The 8-bit volume of the window `lo..hi` (stored values): `round((v − lo) · 255 / (hi −

@@ -250,6 +250,32 @@ fn window_maps_16_bit_data_onto_the_8_bit_pipeline() {
         &t.p("c.png"),
     );
     assert!(narrow != windowed);
+    // With an HU mapping the window is in HU: the shared CT head (u16 = HU + 1024) at
+    // 400:1800 HU equals the same file without the mapping at 1424:1800 stored.
+    if let Some(ct) = shared("ct_head.json") {
+        let data = ct.with_file_name("ct_head.u16.raw.gz");
+        std::fs::write(
+            t.p("plain.json"),
+            format!(
+                r#"{{"dims_xyz": [256, 256, 108], "spacing_mm_xyz": [0.957031, 0.957031, 1.5],
+                    "files": {{"u16": {{"file": "{}", "voxel_type": "u16"}}}}}}"#,
+                data.display()
+            ),
+        )
+        .unwrap();
+        let opts = ["--opacity", "100:0,140:0.3,255:0.9", "--shading"];
+        let mut a = vec![ct.to_str().unwrap(), "--u16", "--window", "400:1800"];
+        a.extend_from_slice(&opts);
+        let hu = render(&a, &t.p("d.png"));
+        let plain = t.p("plain.json");
+        let mut b = vec![plain.as_str(), "--window", "1424:1800"];
+        b.extend_from_slice(&opts);
+        let stored = render(&b, &t.p("e.png"));
+        assert!(
+            hu == stored,
+            "the HU window differs from the stored-value window"
+        );
+    }
 }
 
 #[test]
