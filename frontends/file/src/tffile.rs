@@ -462,6 +462,38 @@ mod tests {
         assert!(e(r#"{"version": 1, "opacity": [[0, 0]], "shading": 1}"#).contains("\"shading\""));
     }
 
+    /// Mangled files give errors or specs, never panics.
+    #[test]
+    fn mangled_files_never_panic() {
+        let good = br##"{"version": 1, "units": "hu", "mode": "mip", "shading": true, "opacity": [[0, 0], [1.5, 1]], "color": [[0, "#fff"], [2, "#102030"]], "gradient_opacity": [[0, 0.5]]}"##;
+        let alphabet = b"{}[]\":,-0123456789.eE#abfhumnrtv \\\x00\xff";
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let scale = ValueScale {
+            range: (0, 10),
+            hu: Some((1e-300, 0.0)),
+        };
+        for _ in 0..2000 {
+            let mut b = good.to_vec();
+            for _ in 0..(next() % 4 + 1) {
+                let i = (next() as usize) % b.len();
+                b[i] = alphabet[(next() as usize) % alphabet.len()];
+            }
+            let Ok(v) = serde_json::from_slice::<Value>(&b) else {
+                continue;
+            };
+            if let Ok(spec) = TfSpec::from_json(&v, Path::new("m.json")) {
+                let _ = spec.resolve(&scale, Path::new("v"));
+                let _ = spec.to_text();
+            }
+        }
+    }
+
     #[test]
     fn units_resolve_linearly() {
         let spec = TfSpec {

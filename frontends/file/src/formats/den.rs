@@ -257,6 +257,31 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// Mangled headers and bodies give errors or volumes, never panics.
+    #[test]
+    fn mangled_files_never_panic() {
+        let mut good = header_bytes([4, 3, 2], false, 24);
+        good.extend(0..24u8);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for _ in 0..2000 {
+            let mut b = good.clone();
+            for _ in 0..(next() % 4 + 1) {
+                let i = (next() as usize) % b.len();
+                b[i] = next() as u8;
+            }
+            b.truncate((next() as usize) % (b.len() + 1));
+            if let Ok(d) = parse(p(), &b) {
+                assert_eq!(d.data.len(), d.dims.iter().product::<usize>());
+            }
+        }
+    }
+
     /// The real file, when VolPack's examples are installed.
     #[test]
     fn brainsmall_if_installed() {
