@@ -27,7 +27,7 @@ pub struct Info {
     pub p99: u16,
     /// `(lower, upper, count)` per bin over `min..=max` (stored values).
     pub histogram: Vec<(u16, u16, u64)>,
-    /// `(name, description, CLI options)`.
+    /// Suggested named presets: `(name, description, CLI options)`.
     pub presets: Vec<(String, String, String)>,
 }
 
@@ -83,79 +83,29 @@ pub fn compute(vol: &RawVolume, meta: &VolumeMeta) -> Info {
         histogram,
         presets: Vec::new(),
     };
-    info.presets = presets(&info);
+    info.presets = presets(vol, meta);
     info
 }
 
-/// Whether the values look like CT in Hounsfield units.
+/// Whether the values are (or look like) CT in Hounsfield units
+/// ([`crate::presets::hu_mapping`]).
 pub fn looks_like_ct(info: &Info) -> bool {
-    let m = &info.meta;
-    m.modality.as_deref() == Some("CT")
-        || m.units.as_deref() == Some("HU")
-        || (m.physical(info.min as f64) <= -900.0 && m.physical(info.max as f64) >= 1000.0)
+    crate::presets::hu_mapping(&info.meta, (info.min, info.max)).is_some()
 }
 
-/// Suggested transfer functions, as CLI options in stored values.
-fn presets(info: &Info) -> Vec<(String, String, String)> {
-    let m = &info.meta;
-    let (lo, hi) = (info.min as f64, info.max as f64);
-    // Stored value of a file value, clamped to the data range.
-    let st = |phys: f64| ((phys - m.intercept) / m.slope).round().clamp(lo, hi);
-    let tf = |pts: &[(f64, f64)]| {
-        let mut v: Vec<(f64, f64)> = pts.iter().map(|&(p, a)| (st(p), a)).collect();
-        v.dedup_by(|b, a| b.0 <= a.0);
-        v.iter()
-            .map(|(s, a)| format!("{s}:{a}"))
-            .collect::<Vec<_>>()
-            .join(",")
-    };
-    let mut out = Vec::new();
-    if looks_like_ct(info) {
-        out.push((
-            "ct-bone".into(),
-            "bone (HU 200..1500)".into(),
-            format!(
-                "--opacity \"{}\" --shading",
-                tf(&[(150.0, 0.0), (300.0, 0.3), (1500.0, 0.9)])
-            ),
-        ));
-        out.push((
-            "ct-skin".into(),
-            "skin and soft tissue (HU −500..100)".into(),
-            format!(
-                "--opacity \"{}\" --shading",
-                tf(&[(-600.0, 0.0), (-400.0, 0.05), (-100.0, 0.15), (100.0, 0.3)])
-            ),
-        ));
-        out.push((
-            "ct-angio".into(),
-            "contrast-filled vessels and bone (HU 150..600)".into(),
-            format!(
-                "--opacity \"{}\" --shading",
-                tf(&[(100.0, 0.0), (200.0, 0.2), (600.0, 0.6)])
-            ),
-        ));
-    } else {
-        let (p50, p99) = (info.p50 as f64, info.p99 as f64);
-        let a = if p50 > lo { p50 } else { lo + 0.15 * (hi - lo) };
-        let b = p99.max(a + 1.0);
-        out.push((
-            "mr-default".into(),
-            "ramp from the median to the 99th percentile".into(),
-            format!(
-                "--opacity \"{}:0,{}:0.05,{}:0.4\" --shading",
-                a.round(),
-                ((a + b) / 2.0).round(),
-                b.round()
-            ),
-        ));
-    }
-    out.push((
-        "mip".into(),
-        "maximum intensity projection".into(),
-        "--mode mip".into(),
-    ));
-    out
+/// The named presets that suit the volume, as `shearwarp render` options.
+fn presets(vol: &RawVolume, meta: &VolumeMeta) -> Vec<(String, String, String)> {
+    let scale = crate::presets::value_scale(vol, meta);
+    crate::presets::suggest(&scale)
+        .into_iter()
+        .map(|p| {
+            (
+                p.name.to_string(),
+                p.description.to_string(),
+                format!("--preset {}", p.name),
+            )
+        })
+        .collect()
 }
 
 fn value_rule(m: &VolumeMeta) -> String {
@@ -242,7 +192,7 @@ pub fn to_text(info: &Info, path: &str) -> String {
     }
     let _ = writeln!(s, "suggested presets (options for `shearwarp render`):");
     for (n, d, o) in &info.presets {
-        let _ = writeln!(s, "  {n:<11} {o}    # {d}");
+        let _ = writeln!(s, "  {n:<11} {o:<20} # {d}");
     }
     s
 }
@@ -293,8 +243,7 @@ mod tests {
         assert!(looks_like_ct(&i));
         let names: Vec<&str> = i.presets.iter().map(|p| p.0.as_str()).collect();
         assert_eq!(names, ["ct-bone", "ct-skin", "ct-angio", "mip"]);
-        // HU 150 → stored 1174.
-        assert!(i.presets[0].2.contains("1174:0,"), "{}", i.presets[0].2);
+        assert_eq!(i.presets[0].2, "--preset ct-bone");
         let text = to_text(&i, "x");
         assert!(text.contains("file values -1024..1976 HU"), "{text}");
         let h: u64 = i.histogram.iter().map(|h| h.2).sum();
@@ -307,6 +256,9 @@ mod tests {
         };
         let i = compute(&vol, &meta);
         assert_eq!(i.presets[0].0, "mr-default");
+        assert!(!looks_like_ct(&i));
+        let names: Vec<&str> = i.presets.iter().map(|p| p.0.as_str()).collect();
+        assert_eq!(names, ["mr-default", "mr-brain", "mip"]);
         assert_eq!(i.histogram.len(), BINS);
         assert!(to_json(&i, "x")["dims_xyz"].is_array());
     }

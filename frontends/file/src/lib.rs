@@ -2,8 +2,11 @@
 //! series, NIfTI-1, NRRD, MetaImage), parsing transfer functions from the command line,
 //! encoding, rendering to PNG.
 
+pub mod anim;
 pub mod formats;
 pub mod info;
+pub mod presets;
 pub mod scene;
+pub mod tffile;
 pub mod tfspec;
 pub mod volume;

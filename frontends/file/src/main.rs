@@ -6,19 +6,34 @@ use shearwarp_core::depth::DepthCue;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
 use shearwarp_core::{postclass, swv};
+use shearwarp_file::anim;
+use shearwarp_file::presets;
 use shearwarp_file::scene::{self, Classification, Encoded, Look, Renderer};
+use shearwarp_file::tffile::{Resolved, TfFileError, TfSpec};
 use shearwarp_file::tfspec;
-use shearwarp_file::volume::{self, RawVolume};
+use shearwarp_file::volume::{self, RawVolume, Voxels};
 use std::error::Error;
-use std::path::PathBuf;
+use std::fmt;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 #[derive(Parser)]
 #[command(name = "shearwarp", version, about = "Shear-warp volume renderer")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Print nothing but errors (and the --json object when asked for).
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    /// render, bench, info: print one JSON object on stdout instead of text.
+    #[arg(long, global = true)]
+    json: bool,
+    /// Refuse volumes with more voxels than this (from their header, before reading the
+    /// data); at most 2^30, the core's limit.
+    #[arg(long, global = true, value_name = "N")]
+    max_voxels: Option<u64>,
 }
 
 #[derive(Subcommand)]
@@ -28,9 +43,21 @@ enum Command {
         /// Volume: a DICOM directory or file, .nii/.nii.gz, .nrrd/.nhdr, .mhd/.mha, a raw
         /// file (`.raw`, `.raw.gz`) or its JSON sidecar, or a `.swv`.
         volume: PathBuf,
-        /// Output PNG.
+        /// Output PNG; with --turntable a .gif, a .png (animated PNG) or a name with
+        /// `%d`/`%03d` (numbered PNGs).
         #[arg(short, long)]
         output: PathBuf,
+        /// Write 16 bits per channel (from the renderer's Q15 intermediate image).
+        #[arg(long)]
+        png16: bool,
+        /// Render N frames turning 360/N degrees about the volume's Y axis (vertical on
+        /// screen when --rotate-x is 0) from the start view, into an animation or
+        /// numbered PNGs (see --output).
+        #[arg(long, value_name = "N")]
+        turntable: Option<usize>,
+        /// Turntable frame duration in milliseconds.
+        #[arg(long, default_value_t = 40)]
+        frame_ms: u16,
         #[command(flatten)]
         opts: RenderOpts,
     },
@@ -62,9 +89,6 @@ enum Command {
         /// Volume: a DICOM directory or file, .nii/.nii.gz, .nrrd/.nhdr, .mhd/.mha, or a
         /// raw file with its JSON sidecar.
         volume: PathBuf,
-        /// Print JSON instead of text.
-        #[arg(long)]
-        json: bool,
         /// Prefer the 16-bit file when a sidecar lists one.
         #[arg(long)]
         u16: bool,
@@ -97,12 +121,12 @@ enum ProjectionArg {
 
 impl RenderOpts {
     /// The field of view for a perspective renderer, `None` for parallel projection.
-    fn perspective(&self) -> Result<Option<f64>, String> {
+    fn perspective(&self) -> Result<Option<f64>, Box<dyn Error>> {
         match self.projection {
             ProjectionArg::Parallel => Ok(None),
-            ProjectionArg::Perspective if self.mode.dense() => {
-                Err("--projection perspective works with --mode composite or mip".into())
-            }
+            ProjectionArg::Perspective if self.mode.dense() => Err(usage(
+                "--projection perspective works with --mode composite or mip",
+            )),
             ProjectionArg::Perspective => Ok(Some(self.fov)),
         }
     }
@@ -213,6 +237,97 @@ struct RenderOpts {
     /// Prefer the 16-bit file when the sidecar lists one.
     #[arg(long)]
     u16: bool,
+    /// Named transfer function: ct-bone, ct-skin, ct-angio (Hounsfield units; the volume
+    /// needs an HU mapping), mr-default, mr-brain, mip (relative to the data range).
+    /// --opacity/--color/--gradient-opacity override its parts.
+    #[arg(long, value_name = "NAME", value_parser = clap::builder::PossibleValuesParser::new(presets::NAMES), conflicts_with = "tf")]
+    preset: Option<String>,
+    /// Transfer-function JSON file (the schema of `shearwarp_file::tffile`, as the
+    /// viewer's `T` key saves it). --opacity/--color/--gradient-opacity override parts.
+    #[arg(long, value_name = "FILE")]
+    tf: Option<PathBuf>,
+    /// Window C:W (centre, width) mapped onto the 8-bit pipeline: values C−W/2..C+W/2
+    /// become 0..255, values outside are clamped. In HU when the volume has an HU
+    /// mapping, else in stored values.
+    #[arg(long, value_name = "C:W", allow_hyphen_values = true)]
+    window: Option<String>,
+}
+
+/// A bad command-line value or option combination (exit code 2).
+#[derive(Debug)]
+struct Usage(String);
+
+impl fmt::Display for Usage {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl Error for Usage {}
+
+fn usage(s: impl Into<String>) -> Box<dyn Error> {
+    Box::new(Usage(s.into()))
+}
+
+/// What the user asked to see: progress on a terminal, text, JSON.
+#[derive(Clone, Copy)]
+struct Out {
+    quiet: bool,
+    json: bool,
+    /// Progress bars: stderr is a terminal and neither --quiet nor --json.
+    progress: bool,
+}
+
+impl Out {
+    /// A spinner with `msg` (hidden unless progress is on).
+    fn spinner(&self, msg: String) -> indicatif::ProgressBar {
+        if !self.progress {
+            return indicatif::ProgressBar::hidden();
+        }
+        let pb = indicatif::ProgressBar::new_spinner().with_message(msg);
+        pb.enable_steady_tick(Duration::from_millis(100));
+        pb
+    }
+
+    /// A bar of `n` steps with `msg` (hidden unless progress is on).
+    fn bar(&self, n: usize, msg: &str) -> indicatif::ProgressBar {
+        if !self.progress {
+            return indicatif::ProgressBar::hidden();
+        }
+        let style = indicatif::ProgressStyle::with_template(
+            "{msg} [{bar:30}] {pos}/{len} {elapsed_precise} (eta {eta})",
+        )
+        .map(|s| s.progress_chars("=> "))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+        indicatif::ProgressBar::new(n as u64)
+            .with_style(style)
+            .with_message(msg.to_string())
+    }
+
+    /// A human-readable status line on stderr (not with --quiet or --json).
+    fn note(&self, msg: impl fmt::Display) {
+        if !self.quiet && !self.json {
+            eprintln!("{msg}");
+        }
+    }
+
+    /// Text results on stdout (not with --quiet).
+    fn text(&self, msg: impl fmt::Display) {
+        if !self.quiet {
+            println!("{msg}");
+        }
+    }
+}
+
+/// The transfer function and mode a render uses, in the (possibly windowed) volume's
+/// stored values.
+struct Tf {
+    mode: ModeArg,
+    shading: bool,
+    opacity: Vec<(f64, f64)>,
+    color: Vec<(f64, [u8; 3])>,
+    gradient: Option<Vec<(f64, f64)>>,
+    iso: Option<f64>,
 }
 
 struct Prepared {
@@ -248,68 +363,79 @@ fn default_color(range: (u16, u16)) -> Vec<(f64, [u8; 3])> {
     ]
 }
 
-fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn Error>> {
+fn camera_of(o: &RenderOpts) -> Result<Camera, Box<dyn Error>> {
     let (width, height) = tfspec::parse_size(&o.size)?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let (encoded, file_look) = if scene::is_swv(path) {
-        if o.opacity.is_some() || o.gradient_opacity.is_some() || o.u16 {
-            return Err(format!(
-                "{}: opacity is baked into a .swv file; re-encode it with `shearwarp encode` \
-                 to change --opacity/--gradient-opacity/--u16",
-                path.display()
-            )
-            .into());
-        }
-        let (enc, look) = scene::read_swv(path)?;
-        (enc, Some(look))
-    } else {
-        let raw = load_raw(path, o)?;
-        if o.lod > 0 {
-            if o.lod > 8 {
-                return Err("--lod must be 0..=8".into());
-            }
-            let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing)?;
-            let (level, _) = scene::lod(&raw, o.lod)?;
-            (encode_raw(&level, o)?.as_level(&full), None)
-        } else {
-            (encode_raw(&raw, o)?, None)
-        }
-    };
-    let color = match (&o.color, &file_look) {
-        (Some(s), _) => scene::color_table(&tfspec::parse_color(s)?, encoded.range)?,
-        (None, Some(l)) => l.color,
-        (None, None) => scene::color_table(&default_color(encoded.range), encoded.range)?,
-    };
-    let lighting = if o.shading || file_look.is_none() {
-        o.shading.then(|| cli_lighting(o)).transpose()?
-    } else {
-        file_look.and_then(|l| l.lighting)
-    };
-    let look = Look {
-        mode: match o.mode {
-            ModeArg::Mip => Mode::Mip,
-            _ => Mode::Composite,
-        },
-        color,
-        lighting,
-        ert_threshold: o.ert,
-        depth_cue: o.depth_cue.as_deref().map(parse_depth_cue).transpose()?,
-        shadows: o.shadows,
-    };
-    let camera = Camera {
+    Ok(Camera {
         rotate_x: o.rotate_x,
         rotate_y: o.rotate_y,
         width,
         height,
+    })
+}
+
+fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Error>> {
+    let camera = camera_of(o)?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let (encoded, look) = if scene::is_swv(path) {
+        if o.opacity.is_some()
+            || o.gradient_opacity.is_some()
+            || o.u16
+            || o.preset.is_some()
+            || o.tf.is_some()
+            || o.window.is_some()
+            || o.lod > 0
+        {
+            return Err(usage(format!(
+                "{}: opacity is baked into a .swv file; re-encode it with `shearwarp encode` \
+                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16 \
+                 (or to render a --lod level)",
+                path.display()
+            )));
+        }
+        let (enc, file_look) = scene::read_swv(path)?;
+        let color = match &o.color {
+            Some(s) => scene::color_table(&tfspec::parse_color(s)?, enc.range)?,
+            None => file_look.color,
+        };
+        let lighting = if o.shading {
+            Some(cli_lighting(o)?)
+        } else {
+            file_look.lighting
+        };
+        let look = look_of(o, o.mode, color, lighting, true)?;
+        (enc, look)
+    } else {
+        let (raw, tf) = load_with_tf(path, o, out)?;
+        let sp = out.spinner(format!("classifying and encoding {name}"));
+        let class = Classification {
+            opacity: tf.opacity.clone(),
+            gradient: tf.gradient.clone(),
+            min_opacity: o.min_opacity,
+        };
+        let enc = if o.lod > 0 {
+            if o.lod > 8 {
+                return Err(usage("--lod must be 0..=8"));
+            }
+            let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing)?;
+            let (level, _) = scene::lod(&raw, o.lod)?;
+            scene::encode(&level, &class)?.as_level(&full)
+        } else {
+            scene::encode(&raw, &class)?
+        };
+        sp.finish_and_clear();
+        let color = scene::color_table(&tf.color, enc.range)?;
+        let lighting = tf.shading.then(|| cli_lighting(o)).transpose()?;
+        let look = look_of(o, tf.mode, color, lighting, true)?;
+        (enc, look)
     };
     let threads = o
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     if threads == 0 || threads > 256 {
-        return Err("--threads must be 1..=256".into());
+        return Err(usage("--threads must be 1..=256"));
     }
     Ok(Prepared {
         threads,
@@ -321,6 +447,153 @@ fn prepare(path: &std::path::Path, o: &RenderOpts) -> Result<Prepared, Box<dyn E
     })
 }
 
+fn look_of(
+    o: &RenderOpts,
+    mode: ModeArg,
+    color: shearwarp_core::classify::ColorTable,
+    lighting: Option<Lighting>,
+    classified: bool,
+) -> Result<Look, Box<dyn Error>> {
+    if !classified && (o.depth_cue.is_some() || o.shadows) {
+        return Err(usage(
+            "--depth-cue and --shadows work with --mode composite only",
+        ));
+    }
+    Ok(Look {
+        mode: match mode {
+            ModeArg::Mip => Mode::Mip,
+            _ => Mode::Composite,
+        },
+        color,
+        lighting,
+        ert_threshold: o.ert,
+        depth_cue: o.depth_cue.as_deref().map(parse_depth_cue).transpose()?,
+        shadows: o.shadows,
+    })
+}
+
+/// Loads a volume and works out its transfer function: --preset or --tf (resolved
+/// against the volume's value mapping), overridden by --opacity/--color/
+/// --gradient-opacity, then --window (which turns the volume into 8 bits and moves
+/// every point with it), then the defaults for what is still missing.
+fn load_with_tf(path: &Path, o: &RenderOpts, out: Out) -> Result<(RawVolume, Tf), Box<dyn Error>> {
+    let prefer = if o.u16 {
+        volume::Prefer::U16
+    } else {
+        volume::Prefer::U8
+    };
+    let sp = out.spinner(format!("loading {}", path.display()));
+    let (raw, meta) = volume::load_volume_meta(path, prefer)?;
+    sp.finish_and_clear();
+    let scale = presets::value_scale(&raw, &meta);
+    let base: Option<Resolved> = match (&o.preset, &o.tf) {
+        (Some(n), _) => {
+            let p = presets::find(n).ok_or_else(|| usage(format!("unknown preset '{n}'")))?;
+            Some(p.spec().resolve(&scale, path)?)
+        }
+        (None, Some(f)) => Some(TfSpec::load(f)?.resolve(&scale, path)?),
+        (None, None) => None,
+    };
+    let mut mode = o.mode;
+    if base.as_ref().is_some_and(|b| b.mip) {
+        match mode {
+            ModeArg::Composite | ModeArg::Mip => mode = ModeArg::Mip,
+            _ => {
+                return Err(usage(
+                    "the transfer function asks for MIP, which --mode post/preint/iso cannot do",
+                ))
+            }
+        }
+    }
+    let shading = o.shading || base.as_ref().is_some_and(|b| b.shading == Some(true));
+    let mut opacity = match &o.opacity {
+        Some(s) => Some(tfspec::parse_opacity(s)?),
+        None => base.as_ref().map(|b| b.opacity.clone()),
+    };
+    let mut color = match &o.color {
+        Some(s) => Some(tfspec::parse_color(s)?),
+        None => base.as_ref().and_then(|b| b.color.clone()),
+    };
+    let mut gradient = match &o.gradient_opacity {
+        Some(s) => Some(tfspec::parse_opacity(s)?),
+        None => base.as_ref().and_then(|b| b.gradient_opacity.clone()),
+    };
+    let mut iso = o.iso;
+    let raw = match &o.window {
+        None => raw,
+        Some(w) => {
+            let (lo, hi) = window_bounds(w, &scale)?;
+            let to8 = |v: f64| (v - lo) * 255.0 / (hi - lo);
+            for p in opacity.iter_mut().flatten() {
+                p.0 = to8(p.0);
+            }
+            for p in color.iter_mut().flatten() {
+                p.0 = to8(p.0);
+            }
+            for p in gradient.iter_mut().flatten() {
+                p.0 *= 255.0 / (hi - lo);
+            }
+            iso = iso.map(to8);
+            window_volume(raw, lo, hi)
+        }
+    };
+    let range = match &raw.voxels {
+        Voxels::U8(_) => (0, 255),
+        Voxels::U16(_) => presets::stored_range(&raw),
+    };
+    let tf = Tf {
+        mode,
+        shading,
+        opacity: opacity.unwrap_or_else(|| default_opacity(range, mode)),
+        color: color.unwrap_or_else(|| default_color(range)),
+        gradient,
+        iso,
+    };
+    Ok((raw, tf))
+}
+
+/// Stored-value bounds `(C − W/2, C + W/2)` of `--window C:W` (C and W in HU when the
+/// volume has an HU mapping).
+fn window_bounds(
+    spec: &str,
+    scale: &shearwarp_file::tffile::ValueScale,
+) -> Result<(f64, f64), Box<dyn Error>> {
+    let bad = || {
+        usage(format!(
+            "--window '{spec}': expected CENTRE:WIDTH, e.g. 40:400 (width > 0)"
+        ))
+    };
+    let (c, w) = spec.split_once(':').ok_or_else(bad)?;
+    let c: f64 = c.trim().parse().map_err(|_| bad())?;
+    let w: f64 = w.trim().parse().map_err(|_| bad())?;
+    if !(c.is_finite() && w.is_finite() && w > 0.0) {
+        return Err(bad());
+    }
+    let (lo, hi) = (c - w / 2.0, c + w / 2.0);
+    let (lo, hi) = match scale.hu {
+        Some((slope, intercept)) => ((lo - intercept) / slope, (hi - intercept) / slope),
+        None => (lo, hi),
+    };
+    if !(lo.is_finite() && hi.is_finite() && hi - lo > 0.0 && (hi - lo).is_finite()) {
+        return Err(usage(format!("--window '{spec}': out of range")));
+    }
+    Ok((lo, hi))
+}
+
+/// The 8-bit volume of the window `lo..hi` (stored values): `round((v − lo) · 255 / (hi −
+/// lo))`, clamped to 0..255.
+fn window_volume(raw: RawVolume, lo: f64, hi: f64) -> RawVolume {
+    let map = |v: f64| ((v - lo) * 255.0 / (hi - lo)).round().clamp(0.0, 255.0) as u8;
+    let voxels = match &raw.voxels {
+        Voxels::U8(d) => d.iter().map(|&v| map(v as f64)).collect(),
+        Voxels::U16(d) => d.iter().map(|&v| map(v as f64)).collect(),
+    };
+    RawVolume {
+        voxels: Voxels::U8(voxels),
+        ..raw
+    }
+}
+
 struct Dense {
     vol: scene::DenseVolume,
     renderer: scene::PostRenderer,
@@ -330,109 +603,58 @@ struct Dense {
     camera: Camera,
 }
 
-fn prepare_dense(path: &std::path::Path, o: &RenderOpts) -> Result<Dense, Box<dyn Error>> {
+fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn Error>> {
     if scene::is_swv(path) {
-        return Err(format!(
+        return Err(usage(format!(
             "{}: --mode post/preint/iso need the unclassified volume, not a .swv",
             path.display()
-        )
-        .into());
+        )));
     }
-    let (width, height) = tfspec::parse_size(&o.size)?;
-    let raw = load_raw(path, o)?;
+    let camera = camera_of(o)?;
+    let (raw, tf) = load_with_tf(path, o, out)?;
+    let sp = out.spinner("quantising and computing normals".into());
     let vol = scene::DenseVolume::new(&raw)?;
-    let mode = match o.mode {
+    sp.finish_and_clear();
+    let mode = match tf.mode {
         ModeArg::Post => postclass::PostMode::PostClassified,
         ModeArg::Preint => postclass::PostMode::PreIntegrated,
         _ => {
-            let iso = o
+            let iso = tf
                 .iso
-                .ok_or("--mode iso needs --iso VALUE (raw voxel units)")?;
+                .ok_or_else(|| usage("--mode iso needs --iso VALUE (raw voxel units)"))?;
             if !iso.is_finite() {
-                return Err("--iso must be a finite number".into());
+                return Err(usage("--iso must be a finite number"));
             }
             postclass::PostMode::Isosurface(vol.quantize(iso))
         }
     };
-    let opacity = match &o.opacity {
-        Some(s) => tfspec::parse_opacity(s)?,
-        None => default_opacity(vol.range, o.mode),
-    };
-    let color_pts = match &o.color {
-        Some(s) => tfspec::parse_color(s)?,
-        None => default_color(vol.range),
-    };
-    let look = Look {
-        mode: Mode::Composite,
-        color: scene::color_table(&color_pts, vol.range)?,
-        lighting: o.shading.then(|| cli_lighting(o)).transpose()?,
-        ert_threshold: o.ert,
-        depth_cue: None,
-        shadows: false,
-    };
-    if o.depth_cue.is_some() || o.shadows {
-        return Err("--depth-cue and --shadows work with --mode composite only".into());
-    }
-    let camera = Camera {
-        rotate_x: o.rotate_x,
-        rotate_y: o.rotate_y,
-        width,
-        height,
-    };
+    let color = scene::color_table(&tf.color, vol.range)?;
+    let lighting = tf.shading.then(|| cli_lighting(o)).transpose()?;
+    let look = look_of(o, ModeArg::Composite, color, lighting, false)?;
     let renderer = scene::PostRenderer::new(&vol);
     Ok(Dense {
         vol,
         renderer,
         mode,
-        opacity,
+        opacity: tf.opacity,
         look,
         camera,
     })
 }
 
-fn load_raw(path: &std::path::Path, o: &RenderOpts) -> Result<RawVolume, Box<dyn Error>> {
-    let prefer = if o.u16 {
-        volume::Prefer::U16
-    } else {
-        volume::Prefer::U8
-    };
-    Ok(volume::load_volume_with(path, prefer)?)
-}
-
-fn encode_raw(raw: &RawVolume, o: &RenderOpts) -> Result<Encoded, Box<dyn Error>> {
-    let range = match &raw.voxels {
-        volume::Voxels::U8(_) => (0, 255),
-        volume::Voxels::U16(d) => (
-            d.iter().copied().min().unwrap_or(0),
-            d.iter().copied().max().unwrap_or(0),
-        ),
-    };
-    let opacity = match &o.opacity {
-        Some(s) => tfspec::parse_opacity(s)?,
-        None => default_opacity(range, o.mode),
-    };
-    let gradient = o
-        .gradient_opacity
-        .as_deref()
-        .map(tfspec::parse_opacity)
-        .transpose()?;
-    let class = Classification {
-        opacity,
-        gradient,
-        min_opacity: o.min_opacity,
-    };
-    Ok(scene::encode(raw, &class)?)
-}
-
 fn parse_depth_cue(s: &str) -> Result<DepthCue, Box<dyn Error>> {
-    let bad = || format!("--depth-cue '{s}': expected FRONT:DENSITY, e.g. 1:1.5");
+    let bad = || {
+        usage(format!(
+            "--depth-cue '{s}': expected FRONT:DENSITY, e.g. 1:1.5"
+        ))
+    };
     let (f, d) = s.split_once(':').ok_or_else(bad)?;
     let cue = DepthCue {
         front: f.trim().parse().map_err(|_| bad())?,
         density: d.trim().parse().map_err(|_| bad())?,
     };
     cue.validate()
-        .map_err(|e| format!("--depth-cue '{s}': {e}"))?;
+        .map_err(|e| usage(format!("--depth-cue '{s}': {e}")))?;
     Ok(cue)
 }
 
@@ -449,8 +671,9 @@ fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {
         for s in &o.light {
             let (dir, color) = match s.split_once(':') {
                 Some((d, c)) => {
-                    let rgb = tfspec::parse_color(&format!("0:{}", c.trim()))
-                        .map_err(|_| format!("--light '{s}': colour must be #rrggbb or #rgb"))?;
+                    let rgb = tfspec::parse_color(&format!("0:{}", c.trim())).map_err(|_| {
+                        usage(format!("--light '{s}': colour must be #rrggbb or #rgb"))
+                    })?;
                     (d, rgb[0].1.map(|x| x as f64 / 255.0))
                 }
                 None => (s.as_str(), [1.0; 3]),
@@ -461,10 +684,82 @@ fn cli_lighting(o: &RenderOpts) -> Result<Lighting, Box<dyn Error>> {
                     direction: d,
                     color,
                 })
-                .map_err(|_| "at most 4 lights (--light) are supported")?;
+                .map_err(|_| usage("at most 4 lights (--light) are supported"))?;
         }
     }
     Ok(l)
+}
+
+/// How `render` writes its result.
+struct Output<'a> {
+    path: &'a Path,
+    png16: bool,
+    turntable: Option<usize>,
+    frame_ms: u16,
+}
+
+fn rgb8(frame: &[[u8; 4]]) -> Vec<u8> {
+    frame.iter().flat_map(|p| [p[0], p[1], p[2]]).collect()
+}
+
+/// Renders and writes one image or a turntable; returns (frames, total render ms).
+fn render_out(
+    o: &Output<'_>,
+    camera: Camera,
+    out: Out,
+    mut frame8: impl FnMut(&Camera) -> Result<Vec<[u8; 4]>, Box<dyn Error>>,
+    mut frame16: impl FnMut(&Camera) -> Result<Vec<[u16; 4]>, Box<dyn Error>>,
+) -> Result<(usize, f64), Box<dyn Error>> {
+    let (w, h) = (camera.width, camera.height);
+    let write_err = |e: &dyn fmt::Display| format!("cannot write {}: {e}", o.path.display());
+    let Some(n) = o.turntable else {
+        let t = Instant::now();
+        if o.png16 {
+            let f = frame16(&camera)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            scene::save_png16(o.path, w, h, &f).map_err(|e| write_err(&e))?;
+            return Ok((1, ms));
+        }
+        let f = frame8(&camera)?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        scene::save_png(o.path, w, h, &f).map_err(|e| write_err(&e))?;
+        return Ok((1, ms));
+    };
+    if n == 0 || n > 3600 {
+        return Err(usage("--turntable must be 1..=3600 frames"));
+    }
+    let target = anim::target(o.path).ok_or_else(|| {
+        usage(format!(
+            "{}: --turntable writes .gif, .png (animated PNG) or numbered PNGs (a name with %d)",
+            o.path.display()
+        ))
+    })?;
+    if o.png16 && matches!(target, anim::Target::Gif(_)) {
+        return Err(usage(format!(
+            "{}: a GIF holds 8-bit colour only; use .png (APNG) or numbered PNGs with --png16",
+            o.path.display()
+        )));
+    }
+    let mut writer = anim::Writer::create(&target, w, h, n, o.frame_ms, o.png16)?;
+    let bar = out.bar(n, "turntable");
+    let mut ms = 0.0;
+    for i in 0..n {
+        let mut cam = camera;
+        cam.rotate_y += 360.0 * i as f64 / n as f64;
+        let t = Instant::now();
+        let px = if o.png16 {
+            let f = frame16(&cam)?;
+            anim::Pixels::Rgb16(f.iter().flat_map(|p| [p[0], p[1], p[2]]).collect())
+        } else {
+            anim::Pixels::Rgb8(rgb8(&frame8(&cam)?))
+        };
+        ms += t.elapsed().as_secs_f64() * 1e3;
+        writer.push(px)?;
+        bar.inc(1);
+    }
+    writer.finish()?;
+    bar.finish_and_clear();
+    Ok((n, ms))
 }
 
 fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
@@ -474,25 +769,104 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
     {
         if opts.preintegrated {
             if opts.mode != ModeArg::Composite && opts.mode != ModeArg::Preint {
-                return Err("--preintegrated conflicts with --mode".into());
+                return Err(usage("--preintegrated conflicts with --mode"));
             }
             opts.mode = ModeArg::Preint;
         }
+    }
+    let out = Out {
+        quiet: cli.quiet,
+        json: cli.json,
+        progress: !cli.quiet && !cli.json && std::io::stderr().is_terminal(),
+    };
+    if cli.json
+        && matches!(
+            cli.command,
+            Command::Compare { .. } | Command::Memory { .. } | Command::Encode { .. }
+        )
+    {
+        return Err(usage("--json is for render, bench and info"));
     }
     match cli.command {
         Command::Render {
             volume,
             output,
+            png16,
+            turntable,
+            frame_ms,
             opts,
-        } if opts.mode.dense() => {
-            opts.perspective()?;
-            let mut d = prepare_dense(&volume, &opts)?;
-            let frame = d
-                .renderer
-                .render(&d.vol, d.mode, &d.opacity, &d.look, &d.camera)?;
-            scene::save_png(&output, d.camera.width, d.camera.height, &frame)
-                .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
-            eprintln!("{} -> {}", volume.display(), output.display());
+        } => {
+            let o = Output {
+                path: &output,
+                png16,
+                turntable,
+                frame_ms,
+            };
+            let (dims, camera, frames, ms) = if opts.mode.dense() {
+                if png16 {
+                    return Err(usage("--png16 works with --mode composite or mip"));
+                }
+                opts.perspective()?;
+                let mut d = prepare_dense(&volume, &opts, out)?;
+                let camera = d.camera;
+                let dims = d.vol.grid.dims;
+                let (frames, ms) = render_out(
+                    &o,
+                    camera,
+                    out,
+                    |cam| {
+                        Ok(d.renderer
+                            .render(&d.vol, d.mode, &d.opacity, &d.look, cam)?)
+                    },
+                    |_| Err(usage("--png16 works with --mode composite or mip")),
+                )?;
+                (dims, camera, frames, ms)
+            } else {
+                let p = prepare(&volume, &opts, out)?;
+                let src = p.encoded.volume()?;
+                let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
+                r.set_supersample(opts.supersample)?;
+                r.set_perspective(opts.perspective()?);
+                let r = std::cell::RefCell::new(r);
+                let (frames, ms) = render_out(
+                    &o,
+                    p.camera,
+                    out,
+                    |cam| Ok(r.borrow_mut().render(&mut src.clone(), cam, &p.look)?),
+                    |cam| Ok(r.borrow_mut().render16(&mut src.clone(), cam, &p.look)?),
+                )?;
+                (p.dims, p.camera, frames, ms)
+            };
+            if out.json {
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "volume": volume.display().to_string(),
+                        "output": output.display().to_string(),
+                        "dims_xyz": dims,
+                        "image": [camera.width, camera.height],
+                        "frames": frames,
+                        "bit_depth": if png16 { 16 } else { 8 },
+                        "render_ms": ms,
+                    })
+                );
+            } else {
+                out.note(format_args!(
+                    "{}: {}x{}x{} -> {} ({}x{}{})",
+                    volume.display(),
+                    dims[0],
+                    dims[1],
+                    dims[2],
+                    output.display(),
+                    camera.width,
+                    camera.height,
+                    if frames > 1 {
+                        format!(", {frames} frames")
+                    } else {
+                        String::new()
+                    }
+                ));
+            }
         }
         Command::Bench {
             volume,
@@ -500,15 +874,17 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             opts,
         } if opts.mode.dense() => {
             if frames == 0 {
-                return Err("--frames must be at least 1".into());
+                return Err(usage("--frames must be at least 1"));
             }
+            opts.perspective()?;
             let t0 = Instant::now();
-            let mut d = prepare_dense(&volume, &opts)?;
+            let mut d = prepare_dense(&volume, &opts, out)?;
             let preprocess = t0.elapsed().as_secs_f64() * 1e3;
             // Every frame changes the transfer function (the ramp shifts by 4% of the
             // range back and forth), so each time includes reclassification.
             let span = (d.vol.range.1 as f64 - d.vol.range.0 as f64).max(1.0);
             let mut times = Vec::with_capacity(frames);
+            let bar = out.bar(frames, "bench");
             for i in 0..frames {
                 let mut cam = d.camera;
                 cam.rotate_y += 360.0 * i as f64 / frames as f64;
@@ -518,62 +894,58 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let frame = d.renderer.render(&d.vol, d.mode, &op, &d.look, &cam)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 std::hint::black_box(frame);
+                bar.inc(1);
             }
+            bar.finish_and_clear();
             times.sort_by(f64::total_cmp);
-            println!(
-                "volume={} mode={:?} image={}x{} (every frame after a transfer-function change)",
-                volume.display(),
-                d.mode,
-                d.camera.width,
-                d.camera.height
-            );
-            println!(
-                "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
-                frames,
-                times[frames / 2],
-                times[0],
-                preprocess
-            );
+            if out.json {
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "volume": volume.display().to_string(),
+                        "mode": format!("{:?}", d.mode),
+                        "dims_xyz": d.vol.grid.dims,
+                        "image": [d.camera.width, d.camera.height],
+                        "frames": frames,
+                        "median_ms": times[frames / 2],
+                        "min_ms": times[0],
+                        "preprocess_ms": preprocess,
+                    })
+                );
+            } else {
+                out.text(format_args!(
+                    "volume={} mode={:?} image={}x{} (every frame after a transfer-function change)",
+                    volume.display(),
+                    d.mode,
+                    d.camera.width,
+                    d.camera.height
+                ));
+                out.text(format_args!(
+                    "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
+                    frames,
+                    times[frames / 2],
+                    times[0],
+                    preprocess
+                ));
+            }
         }
-        Command::Render {
-            volume,
-            output,
-            opts,
-        } => {
-            let p = prepare(&volume, &opts)?;
-            let mut src = p.encoded.volume()?;
-            let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
-            r.set_supersample(opts.supersample)?;
-            r.set_perspective(opts.perspective()?);
-            let frame = r.render(&mut src, &p.camera, &p.look)?;
-            scene::save_png(&output, p.camera.width, p.camera.height, &frame)
-                .map_err(|e| format!("cannot write {}: {e}", output.display()))?;
-            eprintln!(
-                "{}: {}x{}x{} -> {} ({}x{})",
-                p.name,
-                p.dims[0],
-                p.dims[1],
-                p.dims[2],
-                output.display(),
-                p.camera.width,
-                p.camera.height
-            );
-        }
-        Command::Info { volume, json, u16 } => {
+        Command::Info { volume, u16 } => {
             let prefer = if u16 {
                 volume::Prefer::U16
             } else {
                 volume::Prefer::U8
             };
+            let sp = out.spinner(format!("loading {}", volume.display()));
             let (raw, meta) = volume::load_volume_meta(&volume, prefer)?;
             let info = shearwarp_file::info::compute(&raw, &meta);
+            sp.finish_and_clear();
             let shown = volume.display().to_string();
-            if json {
+            if out.json {
                 println!(
                     "{}",
                     serde_json::to_string_pretty(&shearwarp_file::info::to_json(&info, &shown))?
                 );
-            } else {
+            } else if !out.quiet {
                 print!("{}", shearwarp_file::info::to_text(&info, &shown));
             }
         }
@@ -582,20 +954,20 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 .split(['x', 'X'])
                 .map(|t| t.trim().parse::<usize>())
                 .collect::<Result<_, _>>()
-                .map_err(|_| format!("dims '{dims}': expected NXxNYxNZ"))?;
+                .map_err(|_| usage(format!("dims '{dims}': expected NXxNYxNZ")))?;
             let [nx, ny, nz] = d[..] else {
-                return Err(format!("dims '{dims}': expected three numbers").into());
+                return Err(usage(format!("dims '{dims}': expected three numbers")));
             };
             shearwarp_core::classify::Grid::new([nx, ny, nz], [1.0; 3])?;
             if width == 0 || width > shearwarp_core::view::MAX_IMAGE {
-                return Err(format!("width {width}: must be 1..=16384").into());
+                return Err(usage(format!("width {width}: must be 1..=16384")));
             }
             let ws = shearwarp_core::render::workspace_bytes([nx, ny, nz], width);
             let st = swv::stream_buffer_bytes([nx, ny, nz]);
-            println!(
+            out.text(format_args!(
                 "dims={nx}x{ny}x{nz} width={width} workspace_bytes={ws} stream_bytes={st} total_bytes={}",
                 ws + st
-            );
+            ));
         }
         Command::Compare { a, b, tolerance } => {
             let load = |p: &PathBuf| -> Result<image::RgbImage, Box<dyn Error>> {
@@ -625,7 +997,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             } else {
                 10.0 * (255.0f64 * 255.0 / mse).log10()
             };
-            println!("max_channel_error={max} psnr_db={psnr:.2}");
+            out.text(format_args!("max_channel_error={max} psnr_db={psnr:.2}"));
             if max > tolerance {
                 return Err(format!("images differ: max channel error {max} > {tolerance}").into());
             }
@@ -635,14 +1007,14 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             output,
             opts,
         } => {
-            let p = prepare(&volume, &opts)?;
+            let p = prepare(&volume, &opts, out)?;
             let look = swv::Look {
                 color: p.look.color,
                 lighting: p.look.lighting.clone(),
             };
             scene::write_swv(&p.encoded, &look, &output)?;
             let bytes = std::fs::metadata(&output).map(|m| m.len()).unwrap_or(0);
-            eprintln!(
+            out.note(format_args!(
                 "{}: {}x{}x{} -> {} ({} bytes, {} stored voxels per axis copy)",
                 p.name,
                 p.dims[0],
@@ -651,7 +1023,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 output.display(),
                 bytes,
                 p.encoded.visible_voxels()
-            );
+            ));
         }
         Command::Bench {
             volume,
@@ -659,16 +1031,17 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             opts,
         } => {
             if frames == 0 {
-                return Err("--frames must be at least 1".into());
+                return Err(usage("--frames must be at least 1"));
             }
             let t0 = Instant::now();
-            let p = prepare(&volume, &opts)?;
+            let p = prepare(&volume, &opts, out)?;
             let preprocess = t0.elapsed().as_secs_f64() * 1e3;
             let mut src = p.encoded.volume()?;
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_supersample(opts.supersample)?;
             r.set_perspective(opts.perspective()?);
             let mut times = Vec::with_capacity(frames);
+            let bar = out.bar(frames, "bench");
             for i in 0..frames {
                 let mut cam = p.camera;
                 cam.rotate_y += 360.0 * i as f64 / frames as f64;
@@ -676,40 +1049,86 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let frame = r.render(&mut src, &cam, &p.look)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 std::hint::black_box(frame);
+                bar.inc(1);
             }
+            bar.finish_and_clear();
             times.sort_by(f64::total_cmp);
-            println!(
-                "volume={} dims={}x{}x{} image={}x{} threads={} visible_voxels={} rle_bytes={}",
-                p.name,
-                p.dims[0],
-                p.dims[1],
-                p.dims[2],
-                p.camera.width,
-                p.camera.height,
-                p.threads,
-                p.encoded.visible_voxels(),
-                p.encoded.bytes()
-            );
-            println!(
-                "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
-                frames,
-                times[frames / 2],
-                times[0],
-                preprocess
-            );
+            if out.json {
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "volume": p.name,
+                        "dims_xyz": p.dims,
+                        "image": [p.camera.width, p.camera.height],
+                        "threads": p.threads,
+                        "visible_voxels": p.encoded.visible_voxels(),
+                        "rle_bytes": p.encoded.bytes(),
+                        "frames": frames,
+                        "median_ms": times[frames / 2],
+                        "min_ms": times[0],
+                        "preprocess_ms": preprocess,
+                    })
+                );
+            } else {
+                out.text(format_args!(
+                    "volume={} dims={}x{}x{} image={}x{} threads={} visible_voxels={} rle_bytes={}",
+                    p.name,
+                    p.dims[0],
+                    p.dims[1],
+                    p.dims[2],
+                    p.camera.width,
+                    p.camera.height,
+                    p.threads,
+                    p.encoded.visible_voxels(),
+                    p.encoded.bytes()
+                ));
+                out.text(format_args!(
+                    "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
+                    frames,
+                    times[frames / 2],
+                    times[0],
+                    preprocess
+                ));
+            }
         }
     }
     Ok(())
 }
 
+/// Bad input (unreadable or malformed files, unsupported content, bad option values):
+/// exit code 2, like clap's usage errors.
+fn is_bad_input(e: &(dyn Error + 'static)) -> bool {
+    e.is::<volume::LoadError>()
+        || e.is::<TfFileError>()
+        || e.is::<tfspec::TfError>()
+        || e.is::<Usage>()
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match run(cli) {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => e.exit(), // --help, --version
+        Err(e) => {
+            // Usage errors on one line too: drop the usage and help hints.
+            let text = e.to_string();
+            let msg: Vec<&str> = text
+                .lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more"))
+                .collect();
+            let msg = msg.join(" ");
+            eprintln!("error: {}", msg.trim_start_matches("error: "));
+            return ExitCode::from(2);
+        }
+    };
+    let limit = cli.max_voxels.unwrap_or(volume::MAX_VOXELS);
+    match volume::with_voxel_limit(limit, || run(cli)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
-            // Bad input files (unreadable, malformed, unsupported) exit with 2.
-            if e.downcast_ref::<volume::LoadError>().is_some() {
+            // One line, whatever the error's text holds.
+            let msg = e.to_string().replace('\n', " ");
+            eprintln!("error: {msg}");
+            if is_bad_input(&*e) {
                 ExitCode::from(2)
             } else {
                 ExitCode::FAILURE

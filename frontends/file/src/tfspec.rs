@@ -243,7 +243,7 @@ pub fn parse_color(s: &str) -> Result<Vec<(f64, [u8; 3])>, TfError> {
 }
 
 /// `#rrggbb` or `#rgb` (hex digits in either case).
-fn parse_hex_color(s: &str) -> Option<[u8; 3]> {
+pub(crate) fn parse_hex_color(s: &str) -> Option<[u8; 3]> {
     let hex = s.strip_prefix('#')?;
     // Checking every byte first also guarantees ASCII, so slicing below is safe.
     if !hex.bytes().all(|b| b.is_ascii_hexdigit()) {

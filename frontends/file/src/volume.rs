@@ -240,7 +240,7 @@ impl fmt::Display for LoadError {
                 } else {
                     write!(
                         f,
-                        "{}: unknown volume format (not DICOM, NIfTI, NRRD or MetaImage, and no \
+                        "{}: unknown volume format (not DICOM, NIfTI, NRRD, MetaImage or .den, and no \
                          JSON sidecar {} for raw data)",
                         data.display(),
                         sidecar.display()
@@ -358,6 +358,8 @@ pub enum Format {
     Nrrd,
     /// MetaImage `.mhd` or `.mha`.
     MetaImage,
+    /// VolPack's `.den` density map.
+    Den,
 }
 
 /// Decides the format of `path`; `LoadError::Format` for an unknown one.
@@ -382,6 +384,9 @@ pub fn detect_format(path: &Path) -> Result<Format, LoadError> {
     }
     if ends(".mhd") || ends(".mha") {
         return Ok(Format::MetaImage);
+    }
+    if ends(".den") {
+        return Ok(Format::Den);
     }
     if ends(".dcm") || ends(".dicom") || ends(".ima") {
         return Ok(Format::Dicom);
@@ -422,7 +427,7 @@ pub fn detect_format(path: &Path) -> Result<Format, LoadError> {
     Err(LoadError::Format {
         path: path.to_path_buf(),
         reason: "unknown volume format (expected a DICOM directory or file, .nii, .nii.gz, \
-                 .nrrd, .nhdr, .mhd, .mha, or raw data with a JSON sidecar)"
+                 .nrrd, .nhdr, .mhd, .mha, .den, or raw data with a JSON sidecar)"
             .into(),
     })
 }
@@ -439,13 +444,134 @@ pub fn load_volume_meta(
         Ok(Format::Nifti) => return formats::nifti::load(path),
         Ok(Format::Nrrd) => return formats::nrrd::load(path),
         Ok(Format::MetaImage) => return formats::mhd::load(path),
+        Ok(Format::Den) => return formats::den::load(path),
         // Missing files are reported by the sidecar loader below, as before.
         Ok(Format::RawJson) | Err(LoadError::Io { .. }) | Err(LoadError::Format { .. }) => {}
         Err(e) => return Err(e),
     }
     let v = load_raw_json(path, prefer)?;
     let t = v.voxel_type().as_str();
-    Ok((v, VolumeMeta::identity("raw+json", t)))
+    let mut meta = VolumeMeta::identity("raw+json", t);
+    let sidecar = if is_sidecar_name(path) {
+        path.to_path_buf()
+    } else {
+        sidecar_path_for(path)
+    };
+    sidecar_value_mapping(&sidecar, v.voxel_type(), &mut meta)?;
+    Ok((v, meta))
+}
+
+/// Reads what a sidecar says about the meaning of the stored values of the file of type
+/// `vt` into `meta`: `"modality"` (top level) and, in the `"files"` entry of that voxel
+/// type, either numeric `"value_slope"`/`"value_intercept"` (file value is stored times
+/// slope plus intercept) with an optional `"value_units"`, or a `"mapping"` text of the shared
+/// data set's form (`"u16 = HU + 1024"`, `"u8 = ... floor((HU + 1024) / 12) ..."`),
+/// which gives Hounsfield units. Sidecars without these fields leave `meta` as it is.
+fn sidecar_value_mapping(
+    sidecar: &Path,
+    vt: VoxelType,
+    meta: &mut crate::formats::VolumeMeta,
+) -> Result<(), LoadError> {
+    let Ok(text) = std::fs::read(sidecar) else {
+        return Ok(());
+    };
+    let Ok(Value::Object(root)) = serde_json::from_slice::<Value>(&text) else {
+        return Ok(());
+    };
+    let invalid = |field: String, reason: &str| LoadError::InvalidField {
+        path: sidecar.to_path_buf(),
+        field,
+        reason: reason.to_string(),
+    };
+    if let Some(m) = root.get("modality") {
+        let m = m
+            .as_str()
+            .ok_or_else(|| invalid("modality".into(), "must be a string"))?;
+        meta.modality = Some(m.trim().to_string()).filter(|m| !m.is_empty());
+    }
+    let Some(Value::Object(files)) = root.get("files") else {
+        return Ok(());
+    };
+    let entry = files.iter().find(|(key, e)| {
+        let t = e.get("voxel_type").and_then(Value::as_str).unwrap_or(key);
+        VoxelType::parse(t) == Some(vt)
+    });
+    let Some((key, Value::Object(entry))) = entry else {
+        return Ok(());
+    };
+    let num = |name: &str| -> Result<Option<f64>, LoadError> {
+        match entry.get(name) {
+            None => Ok(None),
+            Some(v) => v
+                .as_f64()
+                .filter(|x| x.is_finite())
+                .map(Some)
+                .ok_or_else(|| invalid(format!("files.{key}.{name}"), "must be a finite number")),
+        }
+    };
+    let (slope, intercept) = (num("value_slope")?, num("value_intercept")?);
+    if slope.is_some() || intercept.is_some() {
+        let slope = slope.unwrap_or(1.0);
+        if slope <= 0.0 {
+            return Err(invalid(format!("files.{key}.value_slope"), "must be > 0"));
+        }
+        meta.slope = slope;
+        meta.intercept = intercept.unwrap_or(0.0);
+        if let Some(u) = entry.get("value_units") {
+            let u = u
+                .as_str()
+                .ok_or_else(|| invalid(format!("files.{key}.value_units"), "must be a string"))?;
+            meta.units = Some(u.trim().to_string()).filter(|u| !u.is_empty());
+        }
+    } else if let Some((slope, intercept)) = entry
+        .get("mapping")
+        .and_then(Value::as_str)
+        .and_then(parse_hu_mapping)
+    {
+        meta.slope = slope;
+        meta.intercept = intercept;
+        meta.units = Some("HU".into());
+    }
+    Ok(())
+}
+
+/// `(slope, intercept)` from HU = stored · slope + intercept for mapping texts of the
+/// forms `"u16 = HU + K ..."` and `"u8 = ... floor((HU + K) / D) ..."` (K, D numbers, `+`
+/// or `-`). With `floor`, a stored value stands for D consecutive integer HU values and
+/// the intercept is their mean.
+pub fn parse_hu_mapping(text: &str) -> Option<(f64, f64)> {
+    let rhs = text.split_once('=')?.1;
+    let at = rhs.find("HU")?;
+    let rest = rhs[at + 2..].trim_start();
+    let (sign, rest) = match rest.chars().next()? {
+        '+' => (1.0, &rest[1..]),
+        '-' | '−' => (-1.0, rest.trim_start_matches(['-', '−'])),
+        _ => return None,
+    };
+    let rest = rest.trim_start();
+    let end = rest
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(rest.len());
+    let k: f64 = rest[..end].parse().ok()?;
+    let k = sign * k;
+    let after = rest[end..]
+        .trim_start()
+        .trim_start_matches(')')
+        .trim_start();
+    let d = match after.strip_prefix('/') {
+        Some(r) => {
+            let r = r.trim_start();
+            let e = r
+                .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+                .unwrap_or(r.len());
+            let d: f64 = r[..e].parse().ok()?;
+            (d.is_finite() && d > 0.0).then_some(d)?
+        }
+        None => 1.0,
+    };
+    let floor = rhs[..at].contains("floor");
+    let centre = if floor { (d - 1.0) / 2.0 } else { 0.0 };
+    Some((d, centre - k))
 }
 
 fn load_raw_json(path: &Path, prefer: Prefer) -> Result<RawVolume, LoadError> {
@@ -717,6 +843,20 @@ fn json_kind(v: &Value) -> &'static str {
     }
 }
 
+thread_local! {
+    static VOXEL_LIMIT: std::cell::Cell<u64> = const { std::cell::Cell::new(MAX_VOXELS) };
+}
+
+/// Runs `f` (loads on this thread) with the total voxel limit lowered to `limit` (at most
+/// [`MAX_VOXELS`]): larger volumes are refused as `AbsurdDims` from their header, before
+/// their data is read.
+pub fn with_voxel_limit<T>(limit: u64, f: impl FnOnce() -> T) -> T {
+    let old = VOXEL_LIMIT.with(|l| l.replace(limit.min(MAX_VOXELS)));
+    let out = f();
+    VOXEL_LIMIT.with(|l| l.set(old));
+    out
+}
+
 /// Checks dims against the limits with overflow-free arithmetic.
 pub(crate) fn check_dims(path: &Path, dims: [u64; 3]) -> Result<[usize; 3], LoadError> {
     let absurd = |reason: String| LoadError::AbsurdDims {
@@ -732,12 +872,13 @@ pub(crate) fn check_dims(path: &Path, dims: [u64; 3]) -> Result<[usize; 3], Load
             "extent {d} exceeds the maximum of {MAX_DIM}"
         )));
     }
+    let limit = VOXEL_LIMIT.with(|l| l.get());
     let total = dims
         .iter()
         .try_fold(1u64, |acc, &d| acc.checked_mul(d))
-        .filter(|&t| t <= MAX_VOXELS);
+        .filter(|&t| t <= limit);
     let Some(total) = total else {
-        return Err(absurd(format!("more than {MAX_VOXELS} voxels in total")));
+        return Err(absurd(format!("more than {limit} voxels in total")));
     };
     // Bytes for u16 must be addressable too (matters on 32-bit targets only).
     if usize::try_from(total.saturating_mul(2)).is_err() {
@@ -1375,6 +1516,55 @@ mod tests {
     }
 
     // ---------------------------------------------------------------- errors
+
+    #[test]
+    fn hu_mappings_of_the_shared_sidecars() {
+        assert_eq!(
+            parse_hu_mapping("u16 = HU + 1024  (so HU = u16 - 1024; range 0..4010)"),
+            Some((1.0, -1024.0))
+        );
+        assert_eq!(
+            parse_hu_mapping(
+                "u8 = min(255, max(0, floor((HU + 1024) / 12)))  (window -1024..2036 HU)"
+            ),
+            Some((12.0, -1018.5))
+        );
+        assert_eq!(parse_hu_mapping("u16 = HU - 20"), Some((1.0, 20.0)));
+        for bad in [
+            "",
+            "u8 = value",
+            "HU + 3",
+            "u8 = HU * 2",
+            "u8 = (HU + 1) / 0",
+        ] {
+            assert_eq!(parse_hu_mapping(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn sidecar_value_fields_give_the_mapping() {
+        let dir = TempDir::new("valuemap");
+        dir.write("v.u16.raw", &[0; 48]);
+        let json = dir.write(
+            "v.json",
+            br#"{"dims_xyz": [2, 3, 4], "spacing_mm_xyz": [1, 1, 1], "modality": "CT",
+                "files": {"u16": {"file": "v.u16.raw", "value_slope": 2, "value_intercept": -1000,
+                "value_units": "HU"}}}"#,
+        );
+        let (_, m) = load_volume_meta(&json, Prefer::U8).unwrap();
+        assert_eq!((m.slope, m.intercept), (2.0, -1000.0));
+        assert_eq!(
+            (m.units.as_deref(), m.modality.as_deref()),
+            (Some("HU"), Some("CT"))
+        );
+        dir.write(
+            "v.json",
+            br#"{"dims_xyz": [2, 3, 4], "spacing_mm_xyz": [1, 1, 1],
+                "files": {"u16": {"file": "v.u16.raw", "value_slope": 0}}}"#,
+        );
+        let e = load_volume_meta(&json, Prefer::U8).unwrap_err();
+        assert!(e.to_string().contains("files.u16.value_slope"), "{e}");
+    }
 
     #[test]
     fn error_missing_data_file() {

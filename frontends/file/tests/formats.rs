@@ -6,7 +6,7 @@
 use shearwarp_core::composite::Mode;
 use shearwarp_core::shade::Lighting;
 use shearwarp_core::view::Camera;
-use shearwarp_file::formats::nifti;
+use shearwarp_file::formats::{den, nifti};
 use shearwarp_file::scene::{self, Classification, Look, Renderer};
 use shearwarp_file::volume::{load_volume, load_volume_meta, Prefer, RawVolume, Voxels};
 use std::io::Write;
@@ -94,8 +94,8 @@ fn u8_bytes(v: &RawVolume) -> &[u8] {
     }
 }
 
-/// The 64³ Colin27 fixture written as NIfTI, NRRD and MetaImage renders exactly like
-/// the raw + JSON original.
+/// The 64³ Colin27 fixture written as NIfTI, NRRD, MetaImage and .den renders exactly
+/// like the raw + JSON original.
 #[test]
 fn every_format_renders_like_raw() {
     let raw = load_volume(&fixtures().join("mr_head_colin27_64.json")).unwrap();
@@ -151,11 +151,17 @@ fn every_format_renders_like_raw() {
     mha.extend_from_slice(&zlib(bytes));
     std::fs::write(t.p("head.mha"), mha).unwrap();
     files.push(t.p("head.mha"));
+    // VolPack .den (no spacing in the format: 1 mm; rendered with the raw spacing).
+    den::write(&t.p("head.den"), d, bytes).unwrap();
+    files.push(t.p("head.den"));
 
     for f in &files {
         let (v, meta) = load_volume_meta(f, Prefer::U8).unwrap();
         assert_eq!(v.dims, raw.dims, "{}", f.display());
-        for a in 0..3 {
+        if meta.format == "den" {
+            assert_eq!(v.spacing, [1.0; 3]);
+        }
+        for a in (0..3).filter(|_| meta.format != "den") {
             assert!(
                 (v.spacing[a] - raw.spacing[a]).abs() < 1e-5,
                 "{}: {:?}",
@@ -235,8 +241,8 @@ fn info_prints_dims_spacing_histogram_presets() {
         "spacing:",
         "values:      stored",
         "histogram",
-        "mr-default",
-        "--mode mip",
+        "--preset mr-default",
+        "--preset mip",
     ] {
         assert!(out.contains(want), "missing {want:?} in\n{out}");
     }
@@ -291,6 +297,19 @@ fn bad_inputs_exit_2_with_one_line() {
     .unwrap();
     // The missing detached data file is the one named.
     cases.push((mhd, "gone.raw: file not found"));
+
+    // VolPack .den: truncated voxels, and a header whose dims are absurd.
+    let den_short = t.p("short.den");
+    den::write(&den_short, [4, 4, 4], &[7; 64]).unwrap();
+    let b = std::fs::read(&den_short).unwrap();
+    std::fs::write(&den_short, &b[..b.len() - 5]).unwrap();
+    cases.push((den_short, "expected 64 bytes for 4×4×4 u8, found 59"));
+    let den_big = t.p("big.den");
+    den::write(&den_big, [4, 4, 4], &[7; 64]).unwrap();
+    let mut b = std::fs::read(&den_big).unwrap();
+    b[50..52].copy_from_slice(&5000i16.to_le_bytes()); // map_len x
+    std::fs::write(&den_big, &b).unwrap();
+    cases.push((den_big, "exceeds the maximum"));
 
     if let Some(dir) = dicom_dir() {
         // Unsupported transfer syntax: patch explicit VR LE into RLE lossless.

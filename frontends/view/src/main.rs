@@ -75,7 +75,7 @@ struct Cli {
     /// Run without a window (needs --script or --dump): same inputs, same frames.
     #[arg(long)]
     no_window: bool,
-    /// Screenshots go to PREFIX-NNN.png.
+    /// Screenshots go to PREFIX-NNN.png, saved transfer functions to PREFIX-tf-NNN.json.
     #[arg(long, default_value = "shearwarp-view")]
     shot_prefix: String,
 }
@@ -204,6 +204,7 @@ struct App {
     shown_at: VecDeque<Instant>,
     stats: Stats,
     shots: usize,
+    tfs: usize,
     shot_prefix: String,
     /// The last note printed (printed again only when it changes).
     last_note: Option<String>,
@@ -247,6 +248,7 @@ impl App {
                 Request::Help => print_keys(),
                 Request::Print => self.print_view(),
                 Request::Screenshot => self.screenshot()?,
+                Request::SaveTf => self.save_tf(),
             }
         }
         if self.view != before {
@@ -503,6 +505,29 @@ impl App {
     }
 }
 
+impl App {
+    /// Writes the transfer function on screen (the preset's ramp under the current
+    /// window/level, its colours, MIP and shading) to `PREFIX-tf-NNN.json` in raw units,
+    /// for `shearwarp render --tf`. A failure is reported, not fatal.
+    fn save_tf(&mut self) {
+        self.tfs += 1;
+        let path = PathBuf::from(format!("{}-tf-{:03}.json", self.shot_prefix, self.tfs));
+        let v = &self.view;
+        let spec = preset::tf_spec(&PRESETS[v.preset], v.wl, self.range, v.is_mip(), v.shading);
+        match spec.save(&path) {
+            Ok(()) => {
+                println!("wrote {}", path.display());
+                let shadows = v.shadows && v.shading && !v.is_mip();
+                self.print_cli(v, shadows);
+            }
+            Err(e) => eprintln!(
+                "save transfer function: cannot write {}: {e}",
+                path.display()
+            ),
+        }
+    }
+}
+
 /// Single-quotes `s` for a POSIX shell when it needs it.
 fn quote(s: &str) -> String {
     if !s.is_empty()
@@ -601,6 +626,7 @@ fn map_key(k: Key, shift: bool) -> Option<ViewKey> {
         Key::W => ViewKey::Shadows,
         Key::D => ViewKey::DepthCue,
         Key::S => ViewKey::Screenshot,
+        Key::T => ViewKey::SaveTf,
         Key::P => ViewKey::Print,
         Key::H | Key::F1 => ViewKey::Help,
         Key::Q | Key::Escape => ViewKey::Quit,
@@ -720,6 +746,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         shown_at: VecDeque::new(),
         stats: Stats::default(),
         shots: 0,
+        tfs: 0,
         shot_prefix: cli.shot_prefix.clone(),
         last_note: None,
     };

@@ -8,7 +8,8 @@
 //! `s = 0` sits at `level − window/2`, `s = 1` at `level + window/2`. Colours stay put
 //! when the window moves.
 
-use shearwarp_file::volume::{RawVolume, Voxels};
+use shearwarp_file::tffile::{TfSpec, Units};
+use shearwarp_file::volume::RawVolume;
 
 /// One transfer-function preset.
 #[derive(Clone, Copy, Debug)]
@@ -164,45 +165,28 @@ fn lo_span(range: (u16, u16)) -> (f64, f64) {
     (lo, (range.1 as f64 - lo).max(1.0))
 }
 
-/// Fraction of voxels allowed above the top of a 16-bit preset range.
-pub const U16_TOP_FRACTION: f64 = 1e-4;
+pub use shearwarp_file::presets::U16_TOP_FRACTION;
 
-/// The raw value range presets are expressed over: `(0, 255)` for 8-bit data; for
-/// 16-bit data the minimum and the value below which all but [`U16_TOP_FRACTION`] of the
-/// voxels lie (the maximum if that would be the minimum). On the shared CT head (u16 =
-/// HU + 1024, maximum 4010) this gives 0..3010, close to the 8-bit copy's window of
-/// −1024..2036 HU, so the same presets fit both files.
+/// The raw value range presets are expressed over: the file frontend's normalised range
+/// ([`shearwarp_file::presets::data_range`]), shared so that the viewer's presets and the
+/// CLI's `--preset`/normalised transfer functions mean the same values. `(0, 255)` for
+/// 8-bit data; for 16-bit data the minimum and the value below which all but
+/// [`U16_TOP_FRACTION`] of the voxels lie. On the shared CT head (u16 = HU + 1024,
+/// maximum 4010) this gives 0..3010, close to the 8-bit copy's window of −1024..2036 HU,
+/// so the same presets fit both files.
 pub fn data_range(raw: &RawVolume) -> (u16, u16) {
-    match &raw.voxels {
-        Voxels::U8(_) => (0, 255),
-        Voxels::U16(d) => u16_range(d),
-    }
+    shearwarp_file::presets::data_range(raw)
 }
 
+#[cfg(test)]
 fn u16_range(d: &[u16]) -> (u16, u16) {
-    let Some(&lo) = d.iter().min() else {
-        return (0, 0);
-    };
-    let hi = d.iter().copied().max().unwrap_or(lo);
-    let mut hist = vec![0u64; 65536];
-    for &v in d {
-        hist[v as usize] += 1;
-    }
-    let allowed = (d.len() as f64 * U16_TOP_FRACTION).floor() as u64;
-    let mut above = 0u64;
-    let mut top = hi;
-    for v in (lo as usize..=hi as usize).rev() {
-        if above + hist[v] > allowed {
-            top = v as u16;
-            break;
-        }
-        above += hist[v];
-    }
-    if top <= lo {
-        (lo, hi)
-    } else {
-        (lo, top)
-    }
+    use shearwarp_file::volume::Voxels;
+    data_range(&RawVolume {
+        name: String::new(),
+        dims: [d.len().max(1), 1, 1],
+        spacing: [1.0; 3],
+        voxels: Voxels::U16(d.to_vec()),
+    })
 }
 
 /// Opacity breakpoints `(raw value, opacity)` of `preset` under `wl`, for data of raw
@@ -260,6 +244,27 @@ pub fn color_spec(points: &[(f64, [u8; 3])]) -> String {
         .map(|(v, c)| format!("{v}:#{:02x}{:02x}{:02x}", c[0], c[1], c[2]))
         .collect::<Vec<_>>()
         .join(",")
+}
+
+/// The transfer function of `preset` under `wl` for data of raw `range`, as a
+/// transfer-function file in raw units (what the `T` key saves): the same opacity and
+/// colour points as [`opacity_points`] and [`color_points`], the same mode, and shading
+/// when it is on and the mode composites.
+pub fn tf_spec(
+    preset: &Preset,
+    wl: WindowLevel,
+    range: (u16, u16),
+    mip: bool,
+    shading: bool,
+) -> TfSpec {
+    TfSpec {
+        units: Units::Raw,
+        mip,
+        shading: Some(shading && !mip),
+        opacity: opacity_points(preset, wl, range),
+        color: Some(color_points(preset, range)),
+        gradient_opacity: None,
+    }
 }
 
 #[cfg(test)]

@@ -120,6 +120,7 @@ pub enum ViewKey {
     Shadows,
     DepthCue,
     Screenshot,
+    SaveTf,
     Print,
     Help,
     Quit,
@@ -176,6 +177,11 @@ pub const KEYS: &[(&str, &str, ViewKey)] = &[
     ("d", "D: depth cueing (fog) on/off", ViewKey::DepthCue),
     ("s", "S: screenshot to PNG", ViewKey::Screenshot),
     (
+        "t",
+        "T: save the transfer function as JSON (for `shearwarp render --tf`)",
+        ViewKey::SaveTf,
+    ),
+    (
         "p",
         "P: print the view and the equivalent `shearwarp render` command",
         ViewKey::Print,
@@ -216,6 +222,7 @@ pub enum Request {
     /// Nothing besides (the view may have changed).
     None,
     Screenshot,
+    SaveTf,
     Print,
     Help,
     Quit,
@@ -272,6 +279,7 @@ pub fn apply(view: &mut ViewState, home: &ViewState, input: Input, size: [usize;
             ViewKey::Shadows => view.shadows = !view.shadows,
             ViewKey::DepthCue => view.depth_cue = !view.depth_cue,
             ViewKey::Screenshot => return Request::Screenshot,
+            ViewKey::SaveTf => return Request::SaveTf,
             ViewKey::Print => return Request::Print,
             ViewKey::Help => return Request::Help,
             ViewKey::Quit => return Request::Quit,

@@ -1,5 +1,5 @@
-//! Readers for medical and scientific volume formats: DICOM series, NIfTI-1, NRRD and
-//! MetaImage. Each returns the loader's [`RawVolume`] (u8 or u16 voxels, x fastest) plus
+//! Readers for medical and scientific volume formats: DICOM series, NIfTI-1, NRRD,
+//! MetaImage and VolPack's `.den`. Each returns the loader's [`RawVolume`] (u8 or u16 voxels, x fastest) plus
 //! a [`VolumeMeta`] saying how stored values map back to the file's values.
 //!
 //! # Value rule (any source type → u8/u16)
@@ -23,6 +23,7 @@
 //! project's DICOM LPS convention (+x left, +y posterior, +z superior). Oblique data is
 //! kept in its own slice frame (not resampled).
 
+pub mod den;
 pub mod dicom;
 pub mod mhd;
 pub mod nifti;
@@ -35,7 +36,7 @@ use std::path::Path;
 /// Where the stored values came from and how they map back to the file's values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VolumeMeta {
-    /// `"raw+json"`, `"dicom"`, `"nifti"`, `"nrrd"` or `"metaimage"`.
+    /// `"raw+json"`, `"dicom"`, `"nifti"`, `"nrrd"`, `"metaimage"` or `"den"`.
     pub format: &'static str,
     /// Element type in the file, e.g. `"i16"`.
     pub source_type: String,

@@ -1,0 +1,533 @@
+//! The `shearwarp` command line: presets, transfer-function files, windows, 16-bit PNG,
+//! turntables, --json/--quiet, and exit code 2 with a one-line error for bad input.
+
+use shearwarp_file::tffile::{TfSpec, Units};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures")
+}
+
+fn head64() -> String {
+    fixtures()
+        .join("mr_head_colin27_64.json")
+        .to_string_lossy()
+        .into_owned()
+}
+
+fn shared(name: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(name);
+    p.exists().then_some(p)
+}
+
+struct Tmp(PathBuf);
+
+impl Tmp {
+    fn new(tag: &str) -> Tmp {
+        let d = std::env::temp_dir().join(format!("shearwarp-cli-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        Tmp(d)
+    }
+    fn p(&self, name: &str) -> String {
+        self.0.join(name).to_string_lossy().into_owned()
+    }
+}
+
+impl Drop for Tmp {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn shearwarp(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_shearwarp"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Runs a render that must succeed; returns its RGB pixels.
+fn render(args: &[&str], out: &str) -> Vec<u8> {
+    let mut a = vec![
+        "render",
+        "--size",
+        "96x96",
+        "--rotate-x",
+        "-70",
+        "--rotate-y",
+        "-35",
+    ];
+    a.extend_from_slice(args);
+    a.extend_from_slice(&["-o", out]);
+    let (code, _, err) = shearwarp(&a);
+    assert_eq!(code, 0, "{a:?}: {err}");
+    let img = image::open(out).unwrap().to_rgb8();
+    assert!(img.as_raw().iter().any(|&v| v > 20), "{a:?}: empty image");
+    img.into_raw()
+}
+
+#[test]
+fn a_saved_tf_file_renders_like_the_same_options() {
+    let t = Tmp::new("tf");
+    let spec = TfSpec {
+        units: Units::Raw,
+        mip: false,
+        shading: Some(true),
+        opacity: vec![(40.0, 0.0), (90.0, 0.05), (200.0, 0.6)],
+        color: Some(vec![
+            (40.0, [0x90, 0x40, 0x30]),
+            (220.0, [0xff, 0xf0, 0xe0]),
+        ]),
+        gradient_opacity: Some(vec![(0.0, 0.3), (30.0, 1.0)]),
+    };
+    let tf = t.p("tf.json");
+    spec.save(Path::new(&tf)).unwrap();
+    assert_eq!(TfSpec::load(Path::new(&tf)).unwrap(), spec);
+    let from_file = render(&[&head64(), "--tf", &tf], &t.p("a.png"));
+    let from_options = render(
+        &[
+            &head64(),
+            "--opacity",
+            "40:0,90:0.05,200:0.6",
+            "--color",
+            "40:#904030,220:#fff0e0",
+            "--gradient-opacity",
+            "0:0.3,30:1",
+            "--shading",
+        ],
+        &t.p("b.png"),
+    );
+    assert!(from_file == from_options, "--tf differs from the options");
+    // Options override the file's parts.
+    let overridden = render(
+        &[&head64(), "--tf", &tf, "--opacity", "40:0,200:0.2"],
+        &t.p("c.png"),
+    );
+    assert!(overridden != from_file);
+    // Normalized units: 0..1 over 0..255 for 8-bit data.
+    std::fs::write(
+        &tf,
+        r##"{"version": 1, "units": "normalized", "shading": true,
+             "opacity": [[0.2, 0], [0.8, 0.5]], "color": [[0, "#804020"], [1, "#ffffff"]]}"##,
+    )
+    .unwrap();
+    let normalized = render(&[&head64(), "--tf", &tf], &t.p("d.png"));
+    let raw = render(
+        &[
+            &head64(),
+            "--opacity",
+            "51:0,204:0.5",
+            "--color",
+            "0:#804020,255:#ffffff",
+            "--shading",
+        ],
+        &t.p("e.png"),
+    );
+    assert!(normalized == raw);
+}
+
+#[test]
+fn presets_equal_their_spelled_out_transfer_functions() {
+    let t = Tmp::new("preset");
+    let preset = render(&[&head64(), "--preset", "mr-default"], &t.p("a.png"));
+    let spelled = render(
+        &[
+            &head64(),
+            "--opacity",
+            "0:0,38.25:0,102:0.1,255:0.8",
+            "--color",
+            "0:#805040,127.5:#e0b090,255:#fffff0",
+            "--shading",
+        ],
+        &t.p("b.png"),
+    );
+    assert!(preset == spelled);
+    let mip = render(&[&head64(), "--preset", "mip"], &t.p("c.png"));
+    let spelled = render(
+        &[
+            &head64(),
+            "--mode",
+            "mip",
+            "--opacity",
+            "12.75:0,38.25:1",
+            "--color",
+            "0:#805040,127.5:#e0b090,255:#fffff0",
+        ],
+        &t.p("d.png"),
+    );
+    assert!(mip == spelled);
+    // CT presets are in HU: on the shared CT head (sidecar mapping u16 = HU + 1024).
+    if let Some(ct) = shared("ct_head.json") {
+        let ct = ct.to_string_lossy().into_owned();
+        let preset = render(&[&ct, "--u16", "--preset", "ct-bone"], &t.p("e.png"));
+        let spelled = render(
+            &[
+                &ct,
+                "--u16",
+                "--opacity",
+                "1174:0,1324:0.3,2524:0.9",
+                "--color",
+                "1174:#a06040,1424:#f0e0c0,2524:#ffffff",
+                "--shading",
+            ],
+            &t.p("f.png"),
+        );
+        assert!(preset == spelled);
+        let (code, out, _) = shearwarp(&["info", &ct]);
+        assert_eq!(code, 0);
+        assert!(
+            out.contains("--preset ct-bone") && out.contains("--preset ct-angio"),
+            "{out}"
+        );
+        assert!(!out.contains("mr-default"), "{out}");
+    }
+}
+
+#[test]
+fn window_maps_16_bit_data_onto_the_8_bit_pipeline() {
+    let t = Tmp::new("window");
+    // A u16 copy of the 64³ head: v16 = 1000 + 4·v8, so the window 1000..2020 (C 1510,
+    // W 1020) maps it back onto v8 exactly.
+    let v8 = std::fs::read(fixtures().join("mr_head_colin27_64.u8.raw")).unwrap();
+    let v16: Vec<u8> = v8
+        .iter()
+        .flat_map(|&v| (1000 + 4 * v as u16).to_le_bytes())
+        .collect();
+    std::fs::write(t.p("w.u16.raw"), v16).unwrap();
+    std::fs::write(
+        t.p("w.json"),
+        r#"{"dims_xyz": [64, 64, 64], "spacing_mm_xyz": [2.828125, 3.390625, 2.828125],
+            "files": {"u16": {"file": "w.u16.raw", "voxel_type": "u16"}}}"#,
+    )
+    .unwrap();
+    let windowed = render(
+        &[
+            &t.p("w.json"),
+            "--window",
+            "1510:1020",
+            "--opacity",
+            "1160:0,1400:0.1,2020:0.8",
+            "--color",
+            "1000:#805040,2020:#fffff0",
+            "--shading",
+        ],
+        &t.p("a.png"),
+    );
+    let eight = render(
+        &[
+            &head64(),
+            "--opacity",
+            "40:0,100:0.1,255:0.8",
+            "--color",
+            "0:#805040,255:#fffff0",
+            "--shading",
+        ],
+        &t.p("b.png"),
+    );
+    assert!(
+        windowed == eight,
+        "the window does not reproduce the 8-bit volume"
+    );
+    // A narrower window clamps: everything above its top is one value.
+    let narrow = render(
+        &[
+            &t.p("w.json"),
+            "--window",
+            "1300:400",
+            "--opacity",
+            "1160:0,1400:0.1,2020:0.8",
+            "--shading",
+        ],
+        &t.p("c.png"),
+    );
+    assert!(narrow != windowed);
+    // With an HU mapping the window is in HU: the shared CT head (u16 = HU + 1024) at
+    // 400:1800 HU equals the same file without the mapping at 1424:1800 stored.
+    if let Some(ct) = shared("ct_head.json") {
+        let data = ct.with_file_name("ct_head.u16.raw.gz");
+        std::fs::write(
+            t.p("plain.json"),
+            format!(
+                r#"{{"dims_xyz": [256, 256, 108], "spacing_mm_xyz": [0.957031, 0.957031, 1.5],
+                    "files": {{"u16": {{"file": "{}", "voxel_type": "u16"}}}}}}"#,
+                data.display()
+            ),
+        )
+        .unwrap();
+        let opts = ["--opacity", "100:0,140:0.3,255:0.9", "--shading"];
+        let mut a = vec![ct.to_str().unwrap(), "--u16", "--window", "400:1800"];
+        a.extend_from_slice(&opts);
+        let hu = render(&a, &t.p("d.png"));
+        let plain = t.p("plain.json");
+        let mut b = vec![plain.as_str(), "--window", "1424:1800"];
+        b.extend_from_slice(&opts);
+        let stored = render(&b, &t.p("e.png"));
+        assert!(
+            hu == stored,
+            "the HU window differs from the stored-value window"
+        );
+    }
+}
+
+#[test]
+fn png16_rounds_to_the_8_bit_image() {
+    let t = Tmp::new("png16");
+    let eight = render(&[&head64(), "--shading"], &t.p("a.png"));
+    let (code, _, err) = shearwarp(&[
+        "render",
+        &head64(),
+        "--size",
+        "96x96",
+        "--rotate-x",
+        "-70",
+        "--rotate-y",
+        "-35",
+        "--shading",
+        "--png16",
+        "-o",
+        &t.p("b.png"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let img = image::open(t.p("b.png")).unwrap();
+    assert_eq!(img.color(), image::ColorType::Rgb16);
+    let sixteen = img.to_rgb16().into_raw();
+    assert_eq!(sixteen.len(), eight.len());
+    let mut finer = 0;
+    for (&w, &n) in sixteen.iter().zip(&eight) {
+        let r = ((w as u32 * 255 + 32767) / 65535) as u8;
+        assert!(r.abs_diff(n) <= 1, "{w} vs {n}");
+        finer += (w % 257 != 0) as usize;
+    }
+    assert!(finer > 100, "no precision beyond 8 bits ({finer} values)");
+}
+
+#[test]
+fn turntable_writes_gif_apng_and_numbered_pngs() {
+    let t = Tmp::new("turn");
+    let base = ["render", &head64(), "--size", "48x40", "--turntable", "4"];
+    for out in ["t.gif", "t.png", "f%02d.png"] {
+        let mut a = base.to_vec();
+        let o = t.p(out);
+        a.extend_from_slice(&["-o", &o, "--shading"]);
+        let (code, _, err) = shearwarp(&a);
+        assert_eq!(code, 0, "{out}: {err}");
+    }
+    use image::AnimationDecoder;
+    let gif = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+        std::fs::File::open(t.p("t.gif")).unwrap(),
+    ))
+    .unwrap();
+    let frames = gif.into_frames().collect_frames().unwrap();
+    assert_eq!(frames.len(), 4);
+    assert_eq!(frames[0].buffer().dimensions(), (48, 40));
+    let dec = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(t.p("t.png")).unwrap(),
+    ));
+    let reader = dec.read_info().unwrap();
+    let actl = reader.info().animation_control.unwrap();
+    assert_eq!(actl.num_frames, 4);
+    // Frame i of the numbered files is the still image at rotate-y 90·i.
+    for (i, ry) in [(0, "0"), (1, "90"), (3, "270")] {
+        let still = t.p(&format!("still{i}.png"));
+        let (code, _, err) = shearwarp(&[
+            "render",
+            &head64(),
+            "--size",
+            "48x40",
+            "--shading",
+            "--rotate-y",
+            ry,
+            "-o",
+            &still,
+        ]);
+        assert_eq!(code, 0, "{err}");
+        let a = image::open(&still).unwrap().to_rgb8();
+        let b = image::open(t.p(&format!("f{i:02}.png"))).unwrap().to_rgb8();
+        assert!(a == b, "frame {i}");
+    }
+    assert!(!Path::new(&t.p("f04.png")).exists());
+}
+
+#[test]
+fn json_and_quiet_output() {
+    let t = Tmp::new("json");
+    let o = t.p("a.png");
+    let (code, out, err) = shearwarp(&["render", &head64(), "--size", "32x32", "-o", &o, "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.is_empty(), "{err}");
+    let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(j["output"], o.as_str());
+    assert_eq!(j["dims_xyz"], serde_json::json!([64, 64, 64]));
+    assert!(j["render_ms"].as_f64().unwrap() >= 0.0);
+    let (code, out, err) = shearwarp(&[
+        "bench",
+        &head64(),
+        "--size",
+        "32x32",
+        "--frames",
+        "3",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(j["frames"], 3);
+    assert!(j["median_ms"].as_f64().unwrap() >= j["min_ms"].as_f64().unwrap());
+    let (code, out, _) = shearwarp(&["info", &head64(), "--json"]);
+    assert_eq!(code, 0);
+    let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(j["presets"][0]["name"], "mr-default");
+    assert!(j["histogram"].as_array().unwrap().len() > 1);
+    for args in [
+        vec!["render", &head64(), "--size", "32x32", "-o", &o, "--quiet"],
+        vec!["bench", &head64(), "--size", "32x32", "--frames", "2", "-q"],
+        vec!["info", &head64(), "--quiet"],
+    ] {
+        let (code, out, err) = shearwarp(&args);
+        assert_eq!(code, 0, "{args:?}");
+        assert!(out.is_empty() && err.is_empty(), "{args:?}: {out} {err}");
+    }
+    // Not a terminal: no progress bars on stderr.
+    let (_, _, err) = shearwarp(&["render", &head64(), "--size", "32x32", "-o", &o]);
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
+
+/// Bad input of every kind the CLI adds: exit code 2, one line naming the file (or the
+/// option) and the problem.
+#[test]
+fn bad_inputs_exit_2_with_one_line() {
+    let t = Tmp::new("bad");
+    let o = t.p("o.png");
+    let mut cases: Vec<(Vec<String>, String)> = Vec::new();
+    let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    // Dims over a configurable limit (the fixture has 262144 voxels).
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--max-voxels", "100000"]),
+        "more than 100000 voxels".into(),
+    ));
+    cases.push((
+        s(&["info", &head64(), "--max-voxels", "100000"]),
+        "mr_head_colin27_64.json: unusable dims_xyz".into(),
+    ));
+    // Unknown preset; a CT preset on data without HU.
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--preset", "ct-lung"]),
+        "invalid value 'ct-lung'".into(),
+    ));
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--preset", "ct-bone"]),
+        "mr_head_colin27_64.json: the transfer function is in Hounsfield units".into(),
+    ));
+    // Bad TF files.
+    for (i, (text, want)) in [
+        ("{not json", "invalid JSON"),
+        (r#"{"opacity": [[0, 0]]}"#, "\"version\": missing"),
+        (
+            r#"{"version": 2, "opacity": [[0, 0]]}"#,
+            "\"version\": unsupported version 2",
+        ),
+        (
+            r#"{"version": 1, "opacity": [[0, 0], [10, 1.5]]}"#,
+            "\"opacity\"[1]: 1.5 is not a number in 0..1",
+        ),
+        (
+            r#"{"version": 1, "opacity": [[5, 0], [5, 1]]}"#,
+            "\"opacity\"[1]: value 5 is not greater",
+        ),
+        (
+            r#"{"version": 1, "opacity": [[0, 0]], "colour": []}"#,
+            "\"colour\": unknown field",
+        ),
+        (
+            r#"{"version": 1, "opacity": [[0, 0]], "color": [[0, "red"]]}"#,
+            "\"color\"[0]: \"red\" is not a colour",
+        ),
+        (
+            r#"{"version": 1, "units": "hu", "opacity": [[0, 0]]}"#,
+            "the transfer function is in Hounsfield units",
+        ),
+        (r#"{"version": 1}"#, "\"opacity\": missing"),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let f = t.p(&format!("tf{i}.json"));
+        std::fs::write(&f, text).unwrap();
+        let name = if want.contains("Hounsfield") {
+            "mr_head_colin27_64.json".to_string()
+        } else {
+            format!("tf{i}.json")
+        };
+        cases.push((
+            s(&["render", &head64(), "-o", &o, "--tf", &f]),
+            format!("{name}: {want}"),
+        ));
+    }
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--tf", &t.p("absent.json")]),
+        "absent.json: cannot read".into(),
+    ));
+    // Bad --window, --turntable output.
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--window", "40"]),
+        "--window '40'".into(),
+    ));
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--window", "40:-5"]),
+        "--window '40:-5'".into(),
+    ));
+    cases.push((
+        s(&["render", &head64(), "-o", &t.p("x.jpg"), "--turntable", "3"]),
+        "x.jpg: --turntable writes".into(),
+    ));
+    cases.push((
+        s(&[
+            "render",
+            &head64(),
+            "-o",
+            &t.p("x.gif"),
+            "--turntable",
+            "3",
+            "--png16",
+        ]),
+        "x.gif: a GIF holds 8-bit colour only".into(),
+    ));
+    // Inconsistent DICOM slice sizes (Rows patched in one file of the shared series).
+    if let Some(dir) = shared("dicom/mr_pd_brain_series") {
+        let d = t.p("inconsistent");
+        std::fs::create_dir_all(&d).unwrap();
+        for i in [2, 3, 4] {
+            let n = format!("brain_{i:03}.dcm");
+            let mut b = std::fs::read(dir.join(&n)).unwrap();
+            if i == 3 {
+                let rows = [0x28, 0, 0x10, 0, b'U', b'S', 2, 0];
+                let at = b.windows(8).position(|w| w == rows).unwrap() + 8;
+                b[at..at + 2].copy_from_slice(&128u16.to_le_bytes());
+            }
+            std::fs::write(Path::new(&d).join(&n), b).unwrap();
+        }
+        cases.push((
+            s(&["render", &d, "-o", &o]),
+            "brain_003.dcm: inconsistent slice sizes: 256×128 here, 256×256".into(),
+        ));
+    }
+    for (args, want) in &cases {
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, _, err) = shearwarp(&a);
+        assert_eq!(code, 2, "{a:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{a:?}: {err}");
+        assert!(err.starts_with("error: "), "{err}");
+        assert!(
+            err.contains(want.as_str()),
+            "{a:?}: want {want:?}, got {err}"
+        );
+    }
+}
