@@ -10,7 +10,7 @@
 
 use crate::composite::Rgba;
 use crate::error::{need, Error};
-use crate::fixed;
+use crate::fixed::{self, ONE};
 use crate::view::Factorization;
 
 /// Receives finished image rows: RGBA8, premultiplied over a black background.
@@ -73,6 +73,45 @@ pub fn warp_rows(
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
+    warp_generic(
+        px,
+        view,
+        rows,
+        row,
+        |q| q.map(fixed::to_u8),
+        |y, r| sink.put_row(y, r),
+    )
+}
+
+/// As [`warp_rows`], handing out rows at the intermediate image's full precision:
+/// premultiplied RGBA in Q15 (`0..=32768` is 0..1), for 16-bit output.
+pub fn warp_rows_q15(
+    px: &[Rgba],
+    view: &Factorization,
+    rows: core::ops::Range<usize>,
+    row: &mut [[u16; 4]],
+    mut put_row: impl FnMut(usize, &[[u16; 4]]) -> Result<(), Error>,
+) -> Result<(), Error> {
+    warp_generic(
+        px,
+        view,
+        rows,
+        row,
+        |q| q.map(|c| c.min(ONE) as u16),
+        |y, r| put_row(y, r),
+    )
+}
+
+/// The warp loop, generic over the output pixel: `convert` turns a Q15 sample into it.
+fn warp_generic<T: Copy>(
+    px: &[Rgba],
+    view: &Factorization,
+    rows: core::ops::Range<usize>,
+    row: &mut [T],
+    convert: impl Fn([u32; 4]) -> T,
+    mut put_row: impl FnMut(usize, &[T]) -> Result<(), Error>,
+) -> Result<(), Error> {
+    let zero = convert([0; 4]);
     let [w, h] = view.image;
     need("warp row", w, row.len())?;
     let [iwu, ihu] = view.intermediate;
@@ -93,8 +132,8 @@ pub fn warp_rows(
             let mut num = [at(0), at(1), at(2)];
             for out in row.iter_mut() {
                 *out = match project(num) {
-                    Some((u, v)) => sample(px, iw, ih, u, v),
-                    None => [0; 4],
+                    Some((u, v)) => convert(sample(px, iw, ih, u, v)),
+                    None => zero,
                 };
                 for (n, s) in num.iter_mut().zip(step) {
                     *n = n.saturating_add(s);
@@ -104,12 +143,12 @@ pub fn warp_rows(
             let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
             let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
             for out in row.iter_mut() {
-                *out = sample(px, iw, ih, u, v);
+                *out = convert(sample(px, iw, ih, u, v));
                 u += du;
                 v += dv;
             }
         }
-        sink.put_row(y, row)?;
+        put_row(y, row)?;
     }
     Ok(())
 }
@@ -136,9 +175,10 @@ fn project(n: [i64; 3]) -> Option<(i64, i64)> {
     Some((div(n[0])?, div(n[1])?))
 }
 
-/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`; zero outside.
+/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, Q15 per channel;
+/// zero outside.
 #[inline]
-fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u8; 4] {
+fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u32; 4] {
     let one = 1i64 << FRAC;
     let u0 = u >> FRAC;
     let v0 = v >> FRAC;
@@ -158,5 +198,5 @@ fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u8; 4] {
             }
         }
     }
-    acc.map(|a| fixed::to_u8((a + (1 << 14)) >> 15))
+    acc.map(|a| (a + (1 << 14)) >> 15)
 }

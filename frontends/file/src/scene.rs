@@ -564,55 +564,27 @@ impl Renderer {
         self.warp16(&frame.view)
     }
 
-    /// The warp of [`Renderer::warp`] (the same 16.16 positions and Q15 bilinear weights
-    /// as the core's `warp::warp_rows`) keeping 16 bits per channel: each channel is the
-    /// Q15 sum scaled to 0..65535 instead of rounded to 8 bits. Rounding it to 8 bits
-    /// (`(v · 255 + 32767) / 65535`) gives the 8-bit frame within 1.
+    /// The warp of [`Renderer::warp`] at 16 bits per channel: the core's
+    /// `warp::warp_rows_q15` (the same positions and weights as the 8-bit warp, before
+    /// rounding) scaled to 0..65535. Rounding it to 8 bits (`(v · 255 + 32767) / 65535`)
+    /// gives the 8-bit frame within 1.
     pub fn warp16(&self, view: &Factorization) -> Result<Vec<[u16; 4]>, Error> {
-        const FRAC: u32 = 16;
-        let fixed = |x: f64| (x.clamp(-1.0e12, 1.0e12) * (1u64 << FRAC) as f64).round() as i64;
-        let [iwu, ihu] = view.intermediate;
-        let px = self.pixels.get(..iwu * ihu).ok_or(Error::BufferTooSmall {
+        let [iw, ih] = view.intermediate;
+        let px = self.pixels.get(..iw * ih).ok_or(Error::BufferTooSmall {
             what: "intermediate pixels",
-            needed: iwu * ihu,
+            needed: iw * ih,
             got: self.pixels.len(),
         })?;
         let [w, h] = view.image;
-        let m = view.image_to_intermediate;
-        let (iw, ih) = (iwu as i64, ihu as i64);
-        let (du, dv) = (fixed(m[0][0]), fixed(m[1][0]));
-        let one = 1i64 << FRAC;
-        let q15 = shearwarp_core::fixed::ONE;
+        let q15 = shearwarp_core::fixed::ONE as u64;
         let mut out = vec![[0u16; 4]; w * h];
-        for (y, row) in out.chunks_mut(w.max(1)).enumerate() {
-            let yc = y as f64 + 0.5;
-            let mut u = fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
-            let mut v = fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
-            for o in row.iter_mut() {
-                let (u0, v0) = (u >> FRAC, v >> FRAC);
-                if !(u0 < -1 || v0 < -1 || u0 >= iw || v0 >= ih) {
-                    let fu = ((one - (u & (one - 1))) >> 1) as u32;
-                    let fv = ((one - (v & (one - 1))) >> 1) as u32;
-                    let wts = shearwarp_core::fixed::bilinear_weights(fu, fv);
-                    let mut acc = [0u32; 4];
-                    let taps = [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)];
-                    for (&(tu, tv), &wt) in taps.iter().zip(wts.iter()) {
-                        if wt != 0 && tu >= 0 && tv >= 0 && tu < iw && tv < ih {
-                            let p = px[(tv * iw + tu) as usize];
-                            for c in 0..4 {
-                                acc[c] += wt * p[c] as u32;
-                            }
-                        }
-                    }
-                    *o = acc.map(|a| {
-                        let q = ((a + (1 << 14)) >> 15).min(q15) as u64;
-                        ((q * 65535 + (q15 as u64 / 2)) / q15 as u64) as u16
-                    });
-                }
-                u += du;
-                v += dv;
+        let mut row = vec![[0u16; 4]; w];
+        warp::warp_rows_q15(px, view, 0..h, &mut row, |y, r| {
+            for (o, p) in out[y * w..(y + 1) * w].iter_mut().zip(r) {
+                *o = p.map(|q| ((q as u64 * 65535 + q15 / 2) / q15) as u16);
             }
-        }
+            Ok(())
+        })?;
         Ok(out)
     }
 }
