@@ -255,6 +255,12 @@ impl<'b> Row<'b> {
         (top, bot)
     }
 
+    /// Buffer indices `[lo, hi)` that may hold non-zero entries, `None` if none.
+    #[inline]
+    fn extent(&self) -> Option<(usize, usize)> {
+        (self.dirty.0 < self.dirty.1).then_some(self.dirty)
+    }
+
     pub(crate) fn clear(&mut self) {
         let (a, b) = self.dirty;
         if a < b {
@@ -571,7 +577,6 @@ pub fn composite_slice(
             empty
         }
     };
-    let mut top_runs = row_of(jt_lo).0;
     let first = row_of(jt_lo);
     // Row j is read by scanlines j + n_v (as the bottom row) and j + n_v + 1 (top).
     // In MIP no pixel becomes opaque, so every voxel is needed.
@@ -622,19 +627,21 @@ pub fn composite_slice(
             let line = (v as usize - img.row0) * width;
             let pixels = &mut img.pixels[line..line + width];
             let links = &mut img.links[line..line + width];
-            let shift = ou.n as i64;
-            let spans = MergedSpans {
-                a: Spans::new(top_runs).peekable(),
-                b: Spans::new(next.0).peekable(),
+            // Pixel u reads buffer entries u − n and u − n + 1: visit the pixels that
+            // reach the non-zero extent of either row (zero taps leave a pixel as it is).
+            let (lo, hi) = match (top.extent(), bot.extent()) {
+                (Some(a), Some(b)) => (a.0.min(b.0), a.1.max(b.1)),
+                (Some(a), None) | (None, Some(a)) => a,
+                (None, None) => (0, 0),
             };
-            for (a, b) in spans {
-                let ua = (a as i64 + shift).clamp(0, width as i64) as usize;
-                let ub = (b as i64 + shift).clamp(0, width as i64) as usize;
+            if lo < hi {
+                let n = ou.n as i64;
+                let ua = (lo as i64 + n - 1).clamp(0, width as i64) as usize;
+                let ub = (hi as i64 + n).clamp(0, width as i64) as usize;
                 composite_span(pixels, links, top.buf, bot.buf, ua, ub, ou.n, w, tables);
             }
         }
         core::mem::swap(&mut top, &mut bot);
-        top_runs = next.0;
     }
     top.clear();
     bot.clear();
