@@ -361,15 +361,30 @@ pub fn render<S: SliceSource, P: PixelSink>(
     let grid = source.grid();
     let sh0 = ws.shadow.as_mut().map(|s| &mut *s.shade0);
     let frame = Frame::new(&grid, camera, settings, ws.shade, sh0)?;
-    need("out row", camera.width, ws.out_row.len())?;
+    render_frame(source, &frame, settings.color, ws, sink)
+}
+
+/// Renders `source` for a frame built beforehand (with `ws.shade`, and the shadow
+/// workspace's `shade0` when shadows are on), e.g. a perspective one from
+/// [`Frame::perspective`]. A perspective frame's row buffer must hold
+/// [`composite::rows_needed`] entries, more than a parallel one's; a smaller one is a
+/// `BufferTooSmall` error.
+pub fn render_frame<S: SliceSource, P: PixelSink>(
+    source: &mut S,
+    frame: &Frame,
+    color: &ColorTable,
+    ws: &mut Workspace<'_>,
+    sink: &mut P,
+) -> Result<(), Error> {
+    need("out row", frame.view.image[0], ws.out_row.len())?;
     let [iw, ih] = frame.view.intermediate;
     let (shadow_bufs, shade0) = match ws.shadow.as_mut() {
         Some(s) => (Some((&mut *s.alpha, &mut *s.rows)), Some(&*s.shade0)),
         None => (None, None),
     };
-    let tables = frame.tables(settings.color, ws.shade, shade0);
+    let tables = frame.tables(color, ws.shade, shade0);
     let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
-    composite_band(source, &frame, &tables, &mut img, ws.rows, shadow_bufs)?;
+    composite_band(source, frame, &tables, &mut img, ws.rows, shadow_bufs)?;
     warp::warp(img.pixels(), &frame.view, ws.out_row, sink)
 }
 

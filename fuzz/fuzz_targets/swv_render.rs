@@ -1,6 +1,7 @@
 //! `.swv` stream: open the fuzz input with `StreamSource` over a `SliceReader` and render
 //! small frames along all three principal axes (composite with the file's lighting, a
-//! depth-cued frame, MIP, and shadows when the file has a light).
+//! depth-cued frame, MIP, and shadows when the file has a light), and one perspective
+//! frame with a field of view taken from the input.
 //!
 //! Every header, table and slice of a `.swv` carries a CRC-32, which random mutation
 //! almost never satisfies. So each input is parsed twice: as it is (exercising the
@@ -17,7 +18,7 @@ use libfuzzer_sys::fuzz_target;
 use shearwarp_core::composite::{self, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::io::{Crc32, SliceReader};
-use shearwarp_core::render::{render, Settings, ShadowWorkspace, Workspace};
+use shearwarp_core::render::{render, render_frame, Frame, Settings, ShadowWorkspace, Workspace};
 use shearwarp_core::shade::ShadeTable;
 use shearwarp_core::shadow;
 use shearwarp_core::swv::{self, StreamSource, ENTRY_LEN, HEADER_LEN, TABLES_START};
@@ -30,6 +31,9 @@ const SIDE: usize = 32;
 const CAP: (usize, usize, usize) = swv::worst_case_capacity([SIDE; 3]);
 const PIX: usize = view::max_intermediate_pixels([SIDE; 3]);
 const ROW: usize = composite::row_buffer_len(SIDE);
+/// Perspective frames need a larger intermediate image and a ring of filtered rows.
+const PERSP_PIX: usize = 4 * PIX;
+const PERSP_ROW: usize = 1 << 16;
 const IMG: usize = 12;
 
 /// Known bug, found by this target (fixtures/regressions/swv-shade-*-overflow.swv):
@@ -48,6 +52,9 @@ struct Bufs {
     pixels: Vec<Rgba>,
     links: Vec<u16>,
     rows: Vec<Rgba>,
+    persp_pixels: Vec<Rgba>,
+    persp_links: Vec<u16>,
+    persp_rows: Vec<Rgba>,
     out_row: Vec<[u8; 4]>,
     shade: Box<ShadeTable>,
     shadow_alpha: Vec<u16>,
@@ -61,6 +68,9 @@ thread_local! {
         pixels: vec![[0; 4]; PIX],
         links: vec![0; PIX],
         rows: vec![[0; 4]; ROW],
+        persp_pixels: vec![[0; 4]; PERSP_PIX],
+        persp_links: vec![0; PERSP_PIX],
+        persp_rows: vec![[0; 4]; PERSP_ROW],
         out_row: vec![[0; 4]; IMG],
         shade: Box::new(ShadeTable::UNSHADED),
         shadow_alpha: vec![0; PIX],
@@ -200,6 +210,45 @@ fn run(data: &[u8]) {
                 for p in b.image.iter() {
                     assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
                 }
+            }
+        }
+        // Perspective: a parameter error (too strong a perspective) or a buffer error
+        // is fine; a frame that renders must keep colour within alpha.
+        let fov = 1.0 + (data.len() % 150) as f64;
+        let settings = Settings {
+            mode: Mode::Composite,
+            color: &look.color,
+            lighting: look.lighting.as_ref(),
+            ert_threshold: 0.95,
+            depth_cue: None,
+            shadows: false,
+        };
+        let cam = Camera {
+            rotate_x: 20.0 + (data.len() % 7) as f64 * 40.0,
+            rotate_y: -35.0,
+            width: IMG,
+            height: IMG,
+        };
+        let grid = shearwarp_core::source::SliceSource::grid(&src);
+        let Ok(frame) = Frame::perspective(&grid, &cam, fov, &settings, &mut b.shade) else {
+            return;
+        };
+        let mut ws = Workspace {
+            pixels: &mut b.persp_pixels,
+            links: &mut b.persp_links,
+            rows: &mut b.persp_rows,
+            out_row: &mut b.out_row,
+            shade: &mut b.shade,
+            shadow: None,
+        };
+        b.image.fill([0; 4]);
+        let mut sink = FrameBuffer {
+            width: IMG,
+            pixels: &mut b.image,
+        };
+        if render_frame(&mut src, &frame, &look.color, &mut ws, &mut sink).is_ok() {
+            for p in b.image.iter() {
+                assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
             }
         }
     });
