@@ -230,25 +230,27 @@ pub(crate) struct Row<'b> {
 }
 
 impl<'b> Row<'b> {
-    /// A row over `buf` (at least `ni + 2` entries for slices `ni` wide), cleared.
-    pub(crate) fn new(buf: &'b mut [Rgba]) -> Self {
-        let n = buf.len();
+    /// A row over `buf` (at least `ni + 2` entries for slices `ni` wide), cleared unless
+    /// `clean` says it already is.
+    pub(crate) fn new(buf: &'b mut [Rgba], clean: bool) -> Self {
+        let n = if clean { 0 } else { buf.len() };
         let mut r = Row { buf, dirty: (0, n) };
         r.clear();
         r
     }
 
-    /// The two row buffers for slices `ni` wide, cleared (`rows` holds at least
-    /// [`row_buffer_len`]`(ni)` entries).
-    fn pair(rows: &'b mut [Rgba], ni: usize) -> (Row<'b>, Row<'b>) {
+    /// The two row buffers for slices `ni` wide (`rows` holds at least
+    /// [`row_buffer_len`]`(ni)` entries), cleared unless `clean` says they already are.
+    fn pair(rows: &'b mut [Rgba], ni: usize, clean: bool) -> (Row<'b>, Row<'b>) {
         let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
+        let all = if clean { (0, 0) } else { (0, ni + 2) };
         let mut top = Row {
             buf: r0,
-            dirty: (0, ni + 2),
+            dirty: all,
         };
         let mut bot = Row {
             buf: r1,
-            dirty: (0, ni + 2),
+            dirty: all,
         };
         top.clear();
         bot.clear();
@@ -527,7 +529,7 @@ impl Iterator for MergedSpans<'_> {
 }
 
 /// Composites slice `k` into the scanlines `img` holds. `rows` must hold
-/// [`row_buffer_len`]`(ni)` entries.
+/// [`rows_needed`]`(view)` entries (any contents: they are cleared first).
 pub fn composite_slice(
     img: &mut Intermediate<'_>,
     slice: &RleSlice<'_>,
@@ -536,6 +538,23 @@ pub fn composite_slice(
     tables: &SliceTables<'_>,
     rows: &mut [Rgba],
     shadow: Option<&ShadowLookup<'_>>,
+) -> Result<(), Error> {
+    composite_slice_in(img, slice, k, view, tables, rows, shadow, false)
+}
+
+/// [`composite_slice`] with `clean` saying whether `rows` is all zero on entry (every
+/// path leaves it all zero again on success, so a caller compositing slice after slice
+/// clears it once instead of once per slice and band).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn composite_slice_in(
+    img: &mut Intermediate<'_>,
+    slice: &RleSlice<'_>,
+    k: usize,
+    view: &Factorization,
+    tables: &SliceTables<'_>,
+    rows: &mut [Rgba],
+    shadow: Option<&ShadowLookup<'_>>,
+    clean: bool,
 ) -> Result<(), Error> {
     let [ni, nj, _] = view.dims;
     if slice.ni != ni || slice.nj != nj {
@@ -549,14 +568,14 @@ pub fn composite_slice(
                 reason: "shadows are not available in perspective views",
             });
         }
-        return crate::perspective::composite_slice(img, slice, k, view, tables, rows);
+        return crate::perspective::composite_slice(img, slice, k, view, tables, rows, clean);
     }
     need("row buffer", row_buffer_len(ni), rows.len())?;
     if view.supersample > 1 {
-        return composite_slice_supersampled(img, slice, k, view, tables, rows, shadow);
+        return composite_slice_supersampled(img, slice, k, view, tables, rows, shadow, clean);
     }
     let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
-    let (mut top, mut bot) = Row::pair(rows, ni);
+    let (mut top, mut bot) = Row::pair(rows, ni, clean);
     // Weights: f weighs the left column / top row.
     let w = fixed::bilinear_weights(ou.f, ov.f);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
@@ -651,6 +670,7 @@ pub fn composite_slice(
 /// [`composite_slice`] for an intermediate image with `s = view.supersample` pixels per
 /// voxel: pixel `u` samples the slice at `u/s − T`, so weights vary from pixel to pixel
 /// (with period `s`), and each pair of voxel rows serves `s` scanlines.
+#[allow(clippy::too_many_arguments)]
 fn composite_slice_supersampled(
     img: &mut Intermediate<'_>,
     slice: &RleSlice<'_>,
@@ -659,6 +679,7 @@ fn composite_slice_supersampled(
     tables: &SliceTables<'_>,
     rows: &mut [Rgba],
     shadow: Option<&ShadowLookup<'_>>,
+    clean: bool,
 ) -> Result<(), Error> {
     let [ni, nj, _] = view.dims;
     let ss = view.supersample as i64;
@@ -667,7 +688,7 @@ fn composite_slice_supersampled(
     // Slice translation T in Q15.
     let tu = ou.n as i64 * one + ou.f as i64;
     let tv = ov.n as i64 * one + ov.f as i64;
-    let (mut top, mut bot) = Row::pair(rows, ni);
+    let (mut top, mut bot) = Row::pair(rows, ni, clean);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let width = img.width;
     let empty: (&[u8], &[Voxel]) = (&[], &[]);

@@ -190,14 +190,16 @@ struct Slot {
 }
 
 /// Composites slice `k` of a perspective view into the scanlines `img` holds. `rows`
-/// must hold [`row_buffer_len`]`(view)` entries.
-pub fn composite_slice(
+/// must hold [`row_buffer_len`]`(view)` entries, all zero if `clean` (they are all zero
+/// again on success).
+pub(crate) fn composite_slice(
     img: &mut Intermediate<'_>,
     slice: &RleSlice<'_>,
     k: usize,
     view: &Factorization,
     tables: &SliceTables<'_>,
     rows: &mut [Rgba],
+    clean: bool,
 ) -> Result<(), Error> {
     let gain = tables.ray_gain;
     let [ni, nj, _] = view.dims;
@@ -220,9 +222,11 @@ pub fn composite_slice(
         });
     }
     let (voxel_row, ring_buf) = rows.split_at_mut(ni + 2);
-    let mut row = Row::new(voxel_row);
+    let mut row = Row::new(voxel_row, clean);
     let ring_buf = &mut ring_buf[..ring * width];
-    ring_buf.fill([0; 4]);
+    if !clean {
+        ring_buf.fill([0; 4]);
+    }
     let mut slots = [Slot {
         j: i64::MIN,
         lo: 0,
@@ -329,6 +333,11 @@ pub fn composite_slice(
         }
     }
     row.clear();
+    for (s, slot) in slots.iter().enumerate().take(ring) {
+        if slot.lo < slot.hi {
+            ring_buf[s * width + slot.lo..s * width + slot.hi].fill([0; 4]);
+        }
+    }
     Ok(())
 }
 

@@ -296,7 +296,10 @@ pub fn composite_band_until<S: SliceSource>(
     keep_going: &mut dyn FnMut() -> bool,
 ) -> Result<bool, Error> {
     let view = &frame.view;
-    need("row buffer", composite::rows_needed(view), rows.len())?;
+    let row_len = composite::rows_needed(view);
+    need("row buffer", row_len, rows.len())?;
+    // Cleared once here; every slice leaves the rows zero again.
+    rows[..row_len].fill([0; 4]);
     if img.width() != view.intermediate[0] || img.height() != view.intermediate[1] {
         return Err(Error::BadParameter {
             reason: "intermediate image does not match the frame",
@@ -333,13 +336,22 @@ pub fn composite_band_until<S: SliceSource>(
                         height: h,
                         off: sf.slice_offset(k),
                     };
-                    composite::composite_slice(img, slice, k, view, tables, rows, Some(&look))?;
+                    composite::composite_slice_in(
+                        img,
+                        slice,
+                        k,
+                        view,
+                        tables,
+                        rows,
+                        Some(&look),
+                        true,
+                    )?;
                     shadow::accumulate_slice(alpha, slice, k, sf, srows)
                 })??;
             }
             _ => {
                 source.with_slice(view.axis, k, |slice| {
-                    composite::composite_slice(img, slice, k, view, tables, rows, None)
+                    composite::composite_slice_in(img, slice, k, view, tables, rows, None, true)
                 })??;
             }
         }
