@@ -462,35 +462,42 @@ impl Renderer {
             reason: "a compositing thread panicked",
         };
         let stopped = AtomicBool::new(false);
+        // One worker per row buffer; the calling thread is the first of them (one thread
+        // fewer to start per frame, and its caches are warm).
+        let work = |rows: &mut Vec<Rgba>, mut src: S| -> Result<(), Error> {
+            loop {
+                let job = queue.lock().map_err(|_| poisoned())?.pop();
+                let Some((i, p, l)) = job else { return Ok(()) };
+                let row0 = i * Self::BAND_ROWS;
+                let here = Self::BAND_ROWS.min(ih - row0);
+                let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
+                let go = &mut || keep_going();
+                if !render::composite_band_until(
+                    &mut src, &frame, &tables, &mut img, rows, None, go,
+                )? {
+                    stopped.store(true, Ordering::Relaxed);
+                    return Ok(());
+                }
+            }
+        };
+        let (first, others) = self.rows.split_at_mut(1);
         std::thread::scope(|scope| -> Result<(), Error> {
-            let handles: Vec<_> = self
-                .rows
+            let handles: Vec<_> = others
                 .iter_mut()
                 .map(|rows| {
-                    let (queue, frame, tables, stopped) = (&queue, &frame, &tables, &stopped);
-                    let mut src = source.clone();
-                    scope.spawn(move || -> Result<(), Error> {
-                        loop {
-                            let job = queue.lock().map_err(|_| poisoned())?.pop();
-                            let Some((i, p, l)) = job else { return Ok(()) };
-                            let row0 = i * Self::BAND_ROWS;
-                            let here = Self::BAND_ROWS.min(ih - row0);
-                            let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
-                            let go = &mut || keep_going();
-                            if !render::composite_band_until(
-                                &mut src, frame, tables, &mut img, rows, None, go,
-                            )? {
-                                stopped.store(true, Ordering::Relaxed);
-                                return Ok(());
-                            }
-                        }
-                    })
+                    let src = source.clone();
+                    let work = &work;
+                    scope.spawn(move || work(rows, src))
                 })
                 .collect();
+            let mine = match first.first_mut() {
+                Some(rows) => work(rows, source.clone()),
+                None => Ok(()),
+            };
             for h in handles {
                 h.join().map_err(|_| poisoned())??;
             }
-            Ok(())
+            mine
         })?;
         Ok((!stopped.load(Ordering::Relaxed)).then_some(frame))
     }
@@ -518,34 +525,41 @@ impl Renderer {
         }
         // Every row is computed on its own, so the result does not depend on the split.
         let strip = h.div_ceil(self.rows.len()).max(1);
+        let strip_warp = |i: usize, chunk: &mut [[u8; 4]]| -> Result<(), Error> {
+            let mut row = vec![[0u8; 4]; w];
+            let mut sink = StripSink {
+                first_row: i * strip,
+                width: w,
+                pixels: chunk,
+            };
+            warp::warp_rows(
+                pixels,
+                view,
+                i * strip..(i + 1) * strip,
+                &mut row,
+                &mut sink,
+            )
+        };
         std::thread::scope(|scope| -> Result<(), Error> {
-            let handles: Vec<_> = frame
-                .chunks_mut(strip * w)
-                .enumerate()
+            let mut chunks = frame.chunks_mut(strip * w).enumerate();
+            // The calling thread warps the first strip.
+            let first = chunks.next();
+            let handles: Vec<_> = chunks
                 .map(|(i, chunk)| {
-                    scope.spawn(move || -> Result<(), Error> {
-                        let mut row = vec![[0u8; 4]; w];
-                        let mut sink = StripSink {
-                            first_row: i * strip,
-                            width: w,
-                            pixels: chunk,
-                        };
-                        warp::warp_rows(
-                            pixels,
-                            view,
-                            i * strip..(i + 1) * strip,
-                            &mut row,
-                            &mut sink,
-                        )
-                    })
+                    let strip_warp = &strip_warp;
+                    scope.spawn(move || strip_warp(i, chunk))
                 })
                 .collect();
+            let mine = match first {
+                Some((i, chunk)) => strip_warp(i, chunk),
+                None => Ok(()),
+            };
             for h in handles {
                 h.join().map_err(|_| Error::Source {
                     reason: "a warp thread panicked",
                 })??;
             }
-            Ok(())
+            mine
         })?;
         Ok(frame)
     }
