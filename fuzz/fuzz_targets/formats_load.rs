@@ -1,10 +1,10 @@
 //! The medical-format readers of `shearwarp_file::volume` (DICOM, NIfTI, NRRD,
-//! MetaImage), through the same dispatch `shearwarp render` uses.
+//! MetaImage, VolPack `.den`), through the same dispatch `shearwarp render` uses.
 //!
 //! Input layout: `KIND BYTES`. KIND picks the file name the bytes are written under in a
-//! private scratch directory (`v.dcm`, `v.nii`, `v.nii.gz`, `v.nrrd`, `v.mha`), so the
-//! extension-based dispatch reaches every reader; gzip-named inputs are compressed first
-//! so the fuzzer gets past the gzip layer. Headers that could name another file (NRRD
+//! private scratch directory (`v.dcm`, `v.nii`, `v.nii.gz`, `v.nrrd`, `v.mha`, `v.den`),
+//! so the extension-based dispatch reaches every reader; gzip-named inputs are
+//! compressed first so the fuzzer gets past the gzip layer. Headers that could name another file (NRRD
 //! detached data, MetaImage `ElementDataFile`) can only name files in the scratch
 //! directory: inputs containing `/` or `\` are skipped.
 //!
@@ -18,7 +18,7 @@ use std::sync::OnceLock;
 use libfuzzer_sys::fuzz_target;
 use shearwarp_file::volume::{self, Prefer, Voxels};
 
-const NAMES: [&str; 5] = ["v.dcm", "v.nii", "v.nii.gz", "v.nrrd", "v.mha"];
+const NAMES: [&str; 6] = ["v.dcm", "v.nii", "v.nii.gz", "v.nrrd", "v.mha", "v.den"];
 
 fn scratch() -> &'static PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
