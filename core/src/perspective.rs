@@ -265,10 +265,12 @@ pub(crate) fn composite_slice(
                 // The band's scanlines that read row j: a pixel opaque in all of them is
                 // never composited again, so its filtered value is not needed.
                 let readers = if tables.mode == Mode::Composite {
+                    // Widened by a row each way: rounding at the footprint's edges must
+                    // only ever add readers.
                     let (va, vb) = ys.pixels_of(j as usize, j as usize + 1);
                     let band = img.first_row() as i64..(img.first_row() + rows_held) as i64;
-                    let va = va.clamp(band.start, band.end);
-                    let vb = vb.clamp(band.start, band.end);
+                    let va = (va - 1).clamp(band.start, band.end);
+                    let vb = (vb + 1).clamp(band.start, band.end);
                     Some(Readers {
                         links: img.links(),
                         first: (va - band.start) as usize,
