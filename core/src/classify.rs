@@ -388,62 +388,30 @@ impl Kernel<'_> {
     fn run<T: Copy + Into<i32>>(&self, d: &[T], out: &mut [Voxel]) {
         let [nx, ny, nz] = self.dims;
         let (sy, sz) = (nx, nx * ny);
-        let at = |i: usize| -> i64 { d[i].into() as i64 };
-        // Central difference along one axis at coordinate c (stride `st`, size `len`),
-        // twice the one-sided difference at the faces so both have the same scale.
-        let diff = |idx: usize, c: usize, len: usize, st: usize| -> i64 {
-            if len == 1 {
-                0
-            } else if c == 0 {
-                2 * (at(idx + st) - at(idx))
-            } else if c == len - 1 {
-                2 * (at(idx) - at(idx - st))
-            } else {
-                at(idx + st) - at(idx - st)
-            }
-        };
         for z in 0..nz {
             for y in 0..ny {
                 let row = z * sz + y * sy;
+                let dst = &mut out[row..row + nx];
                 // y and z are fixed along the row: their differences are interior or not
                 // for the whole row; x is interior except at the two ends.
-                let y_inner = y > 0 && y + 1 < ny;
-                let z_inner = z > 0 && z + 1 < nz;
-                if nx >= 3 && y_inner && z_inner {
-                    let (src, dst) = (&d[row - sz..row + sz + nx], &mut out[row..row + nx]);
-                    self.voxel(d, row, 0, nx, ny, nz, y, z, dst);
-                    self.inner_row(src, sz, sy, nx, dst);
-                    self.voxel(d, row, nx - 1, nx, ny, nz, y, z, dst);
+                if nx >= 3 && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz {
+                    self.voxel(d, 0, y, z, dst);
+                    self.inner_row(&d[row - sz..row + sz + nx], sz, sy, nx, dst);
+                    self.voxel(d, nx - 1, y, z, dst);
                 } else {
-                    let dst = &mut out[row..row + nx];
-                    for (x, o) in dst.iter_mut().enumerate() {
-                        let idx = row + x;
-                        let g = [
-                            diff(idx, x, nx, 1) * self.w[0],
-                            diff(idx, y, ny, sy) * self.w[1],
-                            diff(idx, z, nz, sz) * self.w[2],
-                        ];
-                        *o = self.record(at(idx), g);
+                    for x in 0..nx {
+                        self.voxel(d, x, y, z, dst);
                     }
                 }
             }
         }
     }
 
-    /// Voxel `x` of the row starting at `row`, with boundary handling on every axis.
-    #[allow(clippy::too_many_arguments)]
-    fn voxel<T: Copy + Into<i32>>(
-        &self,
-        d: &[T],
-        row: usize,
-        x: usize,
-        nx: usize,
-        ny: usize,
-        nz: usize,
-        y: usize,
-        z: usize,
-        dst: &mut [Voxel],
-    ) {
+    /// Voxel `(x, y, z)`, written to `dst[x]` (`dst` its row), with boundary handling on
+    /// every axis: central differences, twice the one-sided difference at the faces so
+    /// both have the same scale.
+    fn voxel<T: Copy + Into<i32>>(&self, d: &[T], x: usize, y: usize, z: usize, dst: &mut [Voxel]) {
+        let [nx, ny, nz] = self.dims;
         let at = |i: usize| -> i64 { d[i].into() as i64 };
         let diff = |idx: usize, c: usize, len: usize, st: usize| -> i64 {
             if len == 1 {
@@ -456,7 +424,7 @@ impl Kernel<'_> {
                 at(idx + st) - at(idx - st)
             }
         };
-        let idx = row + x;
+        let idx = (z * ny + y) * nx + x;
         let g = [
             diff(idx, x, nx, 1) * self.w[0],
             diff(idx, y, ny, nx) * self.w[1],
