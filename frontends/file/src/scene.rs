@@ -155,34 +155,40 @@ type AxisArrays = (Vec<u8>, Vec<Voxel>, Vec<ScanIndex>);
 /// which keeps `raw`'s opacity unit and framing (set it on the encoded level with
 /// [`Encoded::as_level`]).
 pub fn lod(raw: &RawVolume, level: usize) -> Result<(RawVolume, Grid), Error> {
-    let full = Grid::new(raw.dims, raw.spacing)?;
-    let mut grid = full;
-    let mut vol = raw.clone();
+    let mut grid = Grid::new(raw.dims, raw.spacing)?;
+    // The level being halved: `raw` itself at first (borrowed, not copied).
+    let mut built: Option<RawVolume> = None;
     for _ in 0..level {
-        let n = shearwarp_core::lod::level_dims(grid.dims);
-        let count = n[0] * n[1] * n[2];
-        let next = match &vol.voxels {
-            Voxels::U8(d) => {
-                let (mut mean, mut lo, mut hi) =
-                    (vec![0u8; count], vec![0u8; count], vec![0u8; count]);
-                grid = shearwarp_core::lod::downsample(d, &grid, &mut mean, &mut lo, &mut hi)?;
-                Voxels::U8(mean)
-            }
-            Voxels::U16(d) => {
-                let (mut mean, mut lo, mut hi) =
-                    (vec![0u16; count], vec![0u16; count], vec![0u16; count]);
-                grid = shearwarp_core::lod::downsample(d, &grid, &mut mean, &mut lo, &mut hi)?;
-                Voxels::U16(mean)
-            }
+        let current = built.as_ref().unwrap_or(raw);
+        let (voxels, next) = match &current.voxels {
+            Voxels::U8(d) => halve(d, &grid).map(|(m, g)| (Voxels::U8(m), g))?,
+            Voxels::U16(d) => halve(d, &grid).map(|(m, g)| (Voxels::U16(m), g))?,
         };
-        vol = RawVolume {
-            name: vol.name.clone(),
+        grid = next;
+        built = Some(RawVolume {
+            name: raw.name.clone(),
             dims: grid.dims,
             spacing: grid.spacing,
-            voxels: next,
-        };
+            voxels,
+        });
     }
-    Ok((vol, grid))
+    Ok((built.unwrap_or_else(|| raw.clone()), grid))
+}
+
+/// The means of the level above `d` (a `grid` volume) and that level's grid.
+fn halve<T: shearwarp_core::lod::Sample + Default + Clone>(
+    d: &[T],
+    grid: &Grid,
+) -> Result<(Vec<T>, Grid), Error> {
+    let n = shearwarp_core::lod::level_dims(grid.dims);
+    let count = n[0] * n[1] * n[2];
+    let (mut mean, mut lo, mut hi) = (
+        vec![T::default(); count],
+        vec![T::default(); count],
+        vec![T::default(); count],
+    );
+    let level = shearwarp_core::lod::downsample(d, grid, &mut mean, &mut lo, &mut hi)?;
+    Ok((mean, level))
 }
 
 impl Encoded {
