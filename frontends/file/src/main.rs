@@ -883,21 +883,15 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             // Every frame changes the transfer function (the ramp shifts by 4% of the
             // range back and forth), so each time includes reclassification.
             let span = (d.vol.range.1 as f64 - d.vol.range.0 as f64).max(1.0);
-            let mut times = Vec::with_capacity(frames);
-            let bar = out.bar(frames, "bench");
-            for i in 0..frames {
-                let mut cam = d.camera;
-                cam.rotate_y += 360.0 * i as f64 / frames as f64;
+            let times = time_turntable(frames, d.camera, out, |i, cam| {
                 let shift = if i % 2 == 0 { 0.0 } else { 0.04 * span };
                 let op: Vec<(f64, f64)> = d.opacity.iter().map(|&(v, a)| (v + shift, a)).collect();
                 let t = Instant::now();
-                let frame = d.renderer.render(&d.vol, d.mode, &op, &d.look, &cam)?;
-                times.push(t.elapsed().as_secs_f64() * 1e3);
+                let frame = d.renderer.render(&d.vol, d.mode, &op, &d.look, cam)?;
+                let ms = t.elapsed().as_secs_f64() * 1e3;
                 std::hint::black_box(frame);
-                bar.inc(1);
-            }
-            bar.finish_and_clear();
-            times.sort_by(f64::total_cmp);
+                Ok(ms)
+            })?;
             if out.json {
                 println!(
                     "{}",
@@ -1040,19 +1034,13 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_supersample(opts.supersample)?;
             r.set_perspective(opts.perspective()?);
-            let mut times = Vec::with_capacity(frames);
-            let bar = out.bar(frames, "bench");
-            for i in 0..frames {
-                let mut cam = p.camera;
-                cam.rotate_y += 360.0 * i as f64 / frames as f64;
+            let times = time_turntable(frames, p.camera, out, |_, cam| {
                 let t = Instant::now();
-                let frame = r.render(&mut src, &cam, &p.look)?;
-                times.push(t.elapsed().as_secs_f64() * 1e3);
+                let frame = r.render(&mut src, cam, &p.look)?;
+                let ms = t.elapsed().as_secs_f64() * 1e3;
                 std::hint::black_box(frame);
-                bar.inc(1);
-            }
-            bar.finish_and_clear();
-            times.sort_by(f64::total_cmp);
+                Ok(ms)
+            })?;
             if out.json {
                 println!(
                     "{}",
@@ -1093,6 +1081,28 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
         }
     }
     Ok(())
+}
+
+/// `bench`'s timing loop: `frames` views turned 360/frames degrees apart about Y, each
+/// timed by `frame` (given its index and camera, returning milliseconds), with a progress
+/// bar; returns the times sorted.
+fn time_turntable(
+    frames: usize,
+    camera: Camera,
+    out: Out,
+    mut frame: impl FnMut(usize, &Camera) -> Result<f64, Box<dyn Error>>,
+) -> Result<Vec<f64>, Box<dyn Error>> {
+    let mut times = Vec::with_capacity(frames);
+    let bar = out.bar(frames, "bench");
+    for i in 0..frames {
+        let mut cam = camera;
+        cam.rotate_y += 360.0 * i as f64 / frames as f64;
+        times.push(frame(i, &cam)?);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    times.sort_by(f64::total_cmp);
+    Ok(times)
 }
 
 /// Bad input (unreadable or malformed files, unsupported content, bad option values):
