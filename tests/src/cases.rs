@@ -680,24 +680,38 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
             depth_cue: None,
             shadows: false,
         };
-        let cam = Camera {
-            rotate_x: case.rx,
-            rotate_y: case.ry,
-            width: case.size,
-            height: case.size,
-        };
+        let cam = camera(case);
         let mut r = scene::PostRenderer::new(&vol);
         let frame = r
             .render(&vol, mode, case.opacity, &look, &cam)
             .expect("render");
         return frame.iter().map(|p| [p[0], p[1], p[2]]).collect();
     }
-    let class = Classification {
+    let enc = scene::encode(raw, &classification(case)).expect("encode");
+    render_encoded(case, &enc, threads)
+}
+
+/// The camera of a case.
+fn camera(case: &Case) -> Camera {
+    Camera {
+        rotate_x: case.rx,
+        rotate_y: case.ry,
+        width: case.size,
+        height: case.size,
+    }
+}
+
+/// The classification of a case's transfer function.
+fn classification(case: &Case) -> Classification {
+    Classification {
         opacity: case.opacity.to_vec(),
         gradient: None,
         min_opacity: 0.0,
-    };
-    let enc = scene::encode(raw, &class).expect("encode");
+    }
+}
+
+/// Renders a classic (RLE) case from an encoded volume with `threads` threads.
+fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize) -> Vec<[u8; 3]> {
     let look = Look {
         mode: case.mode,
         color: scene::color_table(case.color, enc.range).expect("colour"),
@@ -706,12 +720,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         depth_cue: case.depth_cue,
         shadows: case.shadows,
     };
-    let cam = Camera {
-        rotate_x: case.rx,
-        rotate_y: case.ry,
-        width: case.size,
-        height: case.size,
-    };
+    let cam = camera(case);
     let mut r = Renderer::with_threads(&enc.grid, threads);
     r.set_supersample(case.supersample).expect("supersample");
     r.set_perspective(case.fov);
@@ -725,31 +734,10 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
 pub fn render_level(case: &Case, raw: &RawVolume, level: usize) -> Vec<[u8; 3]> {
     let (lod, _) = scene::lod(raw, level).expect("level");
     let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing).expect("grid");
-    let class = Classification {
-        opacity: case.opacity.to_vec(),
-        gradient: None,
-        min_opacity: 0.0,
-    };
-    let enc = scene::encode(&lod, &class).expect("encode").as_level(&full);
-    let look = Look {
-        mode: case.mode,
-        color: scene::color_table(case.color, enc.range).expect("colour"),
-        lighting: case.shading.then(|| lighting(case)),
-        ert_threshold: 0.95,
-        depth_cue: None,
-        shadows: false,
-    };
-    let cam = Camera {
-        rotate_x: case.rx,
-        rotate_y: case.ry,
-        width: case.size,
-        height: case.size,
-    };
-    let mut r = Renderer::new(&enc.grid);
-    r.set_perspective(case.fov);
-    let mut src = enc.volume().expect("volume");
-    let frame = r.render(&mut src, &cam, &look).expect("render");
-    frame.iter().map(|p| [p[0], p[1], p[2]]).collect()
+    let enc = scene::encode(&lod, &classification(case))
+        .expect("encode")
+        .as_level(&full);
+    render_encoded(case, &enc, 1)
 }
 
 /// Renders a case with the reference ray caster.
