@@ -859,38 +859,10 @@ fn composite_span(
     }
 }
 
-/// Even (R, B) and odd (G, A) channels of a Q15 pixel, one per 32-bit half of a `u64`.
-#[inline(always)]
-fn lanes(p: Rgba) -> (u64, u64) {
-    (
-        p[0] as u64 | (p[2] as u64) << 32,
-        p[1] as u64 | (p[3] as u64) << 32,
-    )
-}
-
-/// Rounds a pair of 32-bit lanes holding Q30 sums to Q15: `(x + ½) >> 15` in each half.
-/// Each lane stays below 2^31, so nothing carries from the low half into the high one.
-#[inline(always)]
-fn round_lanes(x: u64) -> u64 {
-    const HALF2: u64 = 1 << 14 | 1 << 46;
-    const MASK: u64 = 0x0001_FFFF_0001_FFFF;
-    ((x + HALF2) >> 15) & MASK
-}
-
-/// `min(x, ONE)` in each 32-bit half of `x`, for halves at most `2·ONE`.
-#[inline(always)]
-fn clamp_lanes(x: u64) -> u64 {
-    const ONE2: u64 = (ONE as u64) | (ONE as u64) << 32;
-    // A half exceeds ONE exactly when adding ONE − 1 reaches bit 16.
-    let over = ((x + (ONE2 - 0x1_0000_0001)) >> 16) & 0x1_0000_0001;
-    let mask = over * 0xFFFF_FFFF;
-    (x & !mask) | (ONE2 & mask)
-}
-
-/// [`composite_span`] for [`Mode::Composite`] with the bilinear taps and the "over"
-/// operator done two channels per 64-bit multiply (every product of a Q15 weight and a
-/// Q15 channel, and every sum of four of them, fits a 32-bit half). Bit-identical to
-/// [`composite_pixel`], which the tests check.
+/// [`composite_span`] for [`Mode::Composite`]: each run of pixels that are not opaque
+/// is composited by [`over_run`], a loop without branches that the compiler vectorises,
+/// and the pixels that reached the early-ray-termination opacity are linked afterwards.
+/// Bit-identical to [`composite_pixel`], which the tests check.
 #[inline]
 fn over_span(
     pixels: &mut [Rgba],
@@ -899,36 +871,56 @@ fn over_span(
     us: core::ops::Range<usize>,
     ert: u32,
 ) {
-    let Taps { top, bot, n, w } = *taps;
-    let [w0, w1, w2, w3] = w.map(|x| x as u64);
     let mut u = us.start;
     while u < us.end {
         if links[u] != 0 {
             u = skip_opaque(links, u);
             continue;
         }
-        let bl = (u as i64 - n as i64) as usize;
-        let (tl, tr, bl_, br) = (
-            lanes(top[bl]),
-            lanes(top[bl + 1]),
-            lanes(bot[bl]),
-            lanes(bot[bl + 1]),
+        let run = links[u..us.end].iter().position(|&l| l != 0);
+        let e = run.map_or(us.end, |r| u + r);
+        // Pixels u..e read buffer entries u − n ..= e − n of both rows.
+        let bl = (u as i64 - taps.n as i64) as usize;
+        let m = e - u;
+        let px = &mut pixels[u..e];
+        over_run(
+            px,
+            &taps.top[bl..bl + m + 1],
+            &taps.bot[bl..bl + m + 1],
+            taps.w,
         );
-        let so = round_lanes(w0 * tl.1 + w1 * tr.1 + w2 * bl_.1 + w3 * br.1);
-        let sa = (so >> 32) as u32;
-        if sa != 0 {
-            let se = round_lanes(w0 * tl.0 + w1 * tr.0 + w2 * bl_.0 + w3 * br.0);
-            let p = &mut pixels[u];
-            let (pe, po) = lanes(*p);
-            let tr = (ONE - p[3] as u32) as u64;
-            let pe = clamp_lanes(pe + round_lanes(se * tr));
-            let po = clamp_lanes(po + round_lanes(so * tr));
-            *p = [pe as u16, po as u16, (pe >> 32) as u16, (po >> 32) as u16];
-            if (po >> 32) as u32 >= ert {
-                links[u] = 1;
+        // A pixel still at zero opacity was never composited, so it is not linked even
+        // when the threshold is zero (as in the per-pixel kernel).
+        for (l, p) in links[u..e].iter_mut().zip(px.iter()) {
+            if p[3] as u32 >= ert.max(1) {
+                *l = 1;
             }
         }
-        u += 1;
+        u = e;
+    }
+}
+
+/// Resamples `top`/`bot` (one entry longer than `px`) with weights `w` and composites
+/// the result under `px`. A zero sample leaves a pixel unchanged (`p + 0·(1 − α) = p`),
+/// so no pixel needs a test and the loop has no branches.
+#[inline]
+fn over_run(px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) {
+    const H: u32 = 1 << 14;
+    let w = w.map(|x| x as u16 as u32);
+    for ((p, t), b) in px.iter_mut().zip(top.windows(2)).zip(bot.windows(2)) {
+        let mut s = [0u32; 4];
+        for c in 0..4 {
+            let sum = w[0] * t[0][c] as u32
+                + w[1] * t[1][c] as u32
+                + w[2] * b[0][c] as u32
+                + w[3] * b[1][c] as u32;
+            // At most ONE: the weights sum to ONE and the channels are at most ONE.
+            s[c] = ((sum + H) >> 15) as u16 as u32;
+        }
+        let tr = (ONE - p[3] as u32) as u16 as u32;
+        for c in 0..4 {
+            p[c] = (p[c] as u32 + ((s[c] * tr + H) >> 15)).min(ONE) as u16;
+        }
     }
 }
 
@@ -960,33 +952,35 @@ mod tests {
 
     #[test]
     fn over_span_matches_the_per_pixel_kernel() {
-        // Random premultiplied rows and pixels (channels up to alpha, alpha up to ONE,
-        // edge values included) through both kernels.
+        // Random premultiplied rows (channels up to alpha, alpha up to ONE, edge values
+        // and transparent stretches included) composited under random pixels that are
+        // not yet opaque (alpha below the threshold, or zero) through both kernels.
         let mut seed = 0x9e37_79b9_7f4a_7c15u64;
         let mut next = |m: u32| {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
             let r = (seed >> 20) as u32 % (m + 1);
-            if seed & 7 == 0 {
-                m
-            } else {
-                r
+            match seed & 7 {
+                0 => m,
+                1 => 0,
+                _ => r,
             }
         };
         let color: ColorTable = [[0; 3]; 256];
         let shade = ShadeTable::UNSHADED;
         let opacity = [0u16; 256];
-        for _ in 0..200 {
-            let px = |next: &mut dyn FnMut(u32) -> u32| {
-                let a = next(ONE);
+        for round in 0..400 {
+            let ert = if round % 8 == 0 { 0 } else { next(ONE) };
+            let px = |next: &mut dyn FnMut(u32) -> u32, max_alpha: u32| {
+                let a = next(max_alpha);
                 [next(a) as u16, next(a) as u16, next(a) as u16, a as u16]
             };
-            let top: [Rgba; 34] = core::array::from_fn(|_| px(&mut next));
-            let bot: [Rgba; 34] = core::array::from_fn(|_| px(&mut next));
-            let start: [Rgba; 40] = core::array::from_fn(|_| px(&mut next));
+            let top: [Rgba; 34] = core::array::from_fn(|_| px(&mut next, ONE));
+            let bot: [Rgba; 34] = core::array::from_fn(|_| px(&mut next, ONE));
+            let open = ert.saturating_sub(1);
+            let start: [Rgba; 40] = core::array::from_fn(|_| px(&mut next, open));
             let w = fixed::bilinear_weights(next(ONE), next(ONE));
-            let ert = next(ONE);
             let t = SliceTables {
                 opacity: &opacity,
                 color: &color,
