@@ -188,48 +188,128 @@ pub fn encode<'a>(
     voxels: &'a mut [Voxel],
     scans: &'a mut [ScanIndex],
 ) -> Result<RleAxis<'a>, Error> {
-    // One pass: write while counting, then check the counts (arrays sized by [`measure`]
-    // fit exactly; smaller ones give `BufferTooSmall` with the size needed).
     need("dense voxels", grid.voxel_count(), dense.len())?;
-    let [_, nj, nk] = axis.permuted_dims(grid.dims);
-    need("scans", nj * nk + 1, scans.len())?;
-    let scans = &mut scans[..nj * nk + 1];
-    let (n_runs, n_vox) = {
-        let mut w = RunWriter {
-            runs: Some(&mut *runs),
-            voxels: Some(&mut *voxels),
-            n_runs: 0,
-            n_vox: 0,
-            cur_visible: false,
-            cur_len: 0,
-        };
-        let mut line = 0usize;
+    let mut enc = Encoder::new(grid, axis, threshold, runs, voxels, scans)?;
+    walk(dense, grid, axis, |v| match v {
+        Some(v) => enc.push(v),
+        None => enc.end_scanline(),
+    });
+    enc.finish()
+}
+
+/// Run-length encoder of one axis copy fed slice by slice, each slice in the permuted
+/// order (`i` fastest, then `j`). [`encode`] reads the dense volume along the permuted
+/// axes itself; for the x and y copies that is a strided walk through memory, so a caller
+/// with memory to spare can transpose a few slices at a time into a buffer (reading the
+/// volume in order) and feed them here instead, with the same result.
+pub struct Encoder<'a> {
+    writer: RunWriter<'a>,
+    scans: &'a mut [ScanIndex],
+    dims: [usize; 3],
+    axis: Axis,
+    threshold: u8,
+    /// Scanlines finished so far.
+    line: usize,
+}
+
+impl<'a> Encoder<'a> {
+    /// An encoder writing into caller arrays sized by [`measure`] (smaller ones make
+    /// [`Encoder::finish`] report the size needed).
+    pub fn new(
+        grid: &Grid,
+        axis: Axis,
+        threshold: u8,
+        runs: &'a mut [u8],
+        voxels: &'a mut [Voxel],
+        scans: &'a mut [ScanIndex],
+    ) -> Result<Self, Error> {
+        let [_, nj, nk] = axis.permuted_dims(grid.dims);
+        need("scans", nj * nk + 1, scans.len())?;
+        let scans = &mut scans[..nj * nk + 1];
         scans[0] = ScanIndex { run: 0, voxel: 0 };
-        walk(dense, grid, axis, |v| match v {
-            Some(v) => w.push(v, is_visible(v, threshold)),
-            None => {
-                w.end_scanline();
-                line += 1;
-                if let Some(s) = scans.get_mut(line) {
-                    *s = ScanIndex {
-                        run: w.n_runs as u32,
-                        voxel: w.n_vox as u32,
-                    };
-                }
-            }
-        });
-        (w.n_runs, w.n_vox)
-    };
-    if n_runs > u32::MAX as usize || n_vox > u32::MAX as usize {
-        return Err(Error::BadDimensions {
-            reason: "encoded volume exceeds 2^32 runs or voxels",
-        });
+        Ok(Encoder {
+            writer: RunWriter {
+                runs: Some(runs),
+                voxels: Some(voxels),
+                n_runs: 0,
+                n_vox: 0,
+                cur_visible: false,
+                cur_len: 0,
+            },
+            scans,
+            dims: grid.dims,
+            axis,
+            threshold,
+            line: 0,
+        })
     }
-    need("runs", n_runs, runs.len())?;
-    need("voxels", n_vox, voxels.len())?;
-    let runs = &runs[..n_runs];
-    let voxels = &voxels[..n_vox];
-    RleAxis::new(grid.dims, axis, runs, voxels, scans)
+
+    /// Appends the next slice: `ni·nj` voxels, `i` fastest.
+    pub fn push_slice(&mut self, slice: &[Voxel]) -> Result<(), Error> {
+        let [ni, nj, _] = self.axis.permuted_dims(self.dims);
+        if slice.len() != ni * nj {
+            return Err(Error::BadParameter {
+                reason: "slice length is not ni·nj of the axis copy",
+            });
+        }
+        if self.line + nj >= self.scans.len() {
+            return Err(Error::BadParameter {
+                reason: "more slices than the axis copy holds",
+            });
+        }
+        if ni == 0 {
+            for _ in 0..nj {
+                self.end_scanline();
+            }
+            return Ok(());
+        }
+        for row in slice.chunks_exact(ni) {
+            for v in row {
+                self.push(v);
+            }
+            self.end_scanline();
+        }
+        Ok(())
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: &Voxel) {
+        self.writer.push(v, is_visible(v, self.threshold));
+    }
+
+    fn end_scanline(&mut self) {
+        self.writer.end_scanline();
+        self.line += 1;
+        if let Some(s) = self.scans.get_mut(self.line) {
+            *s = ScanIndex {
+                run: self.writer.n_runs as u32,
+                voxel: self.writer.n_vox as u32,
+            };
+        }
+    }
+
+    /// Checks that every slice arrived and the arrays were large enough, and returns
+    /// the encoded copy (validated).
+    pub fn finish(self) -> Result<RleAxis<'a>, Error> {
+        if self.line + 1 != self.scans.len() {
+            return Err(Error::BadParameter {
+                reason: "fewer slices than the axis copy holds",
+            });
+        }
+        let (n_runs, n_vox) = (self.writer.n_runs, self.writer.n_vox);
+        if n_runs > u32::MAX as usize || n_vox > u32::MAX as usize {
+            return Err(Error::BadDimensions {
+                reason: "encoded volume exceeds 2^32 runs or voxels",
+            });
+        }
+        let runs = self.writer.runs.unwrap_or_default();
+        let voxels = self.writer.voxels.unwrap_or_default();
+        need("runs", n_runs, runs.len())?;
+        need("voxels", n_vox, voxels.len())?;
+        let runs = &runs[..n_runs];
+        let voxels = &voxels[..n_vox];
+        RleAxis::new(self.dims, self.axis, runs, voxels, self.scans)
+    }
 }
 
 /// One encoded axis copy, borrowed. Construction validates it completely, so traversal
@@ -457,6 +537,33 @@ impl<'a> RleSlice<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn encoder_refuses_wrong_slices_and_missing_ones() {
+        let grid = Grid::new([3, 2, 2], [1.0; 3]).unwrap();
+        let (mut runs, mut voxels, mut scans) =
+            ([0u8; 64], [Voxel::default(); 12], [ScanIndex::default(); 5]);
+        let mut enc = Encoder::new(&grid, Axis::Z, 0, &mut runs, &mut voxels, &mut scans).unwrap();
+        let slice = [Voxel::default(); 6];
+        assert!(enc.push_slice(&slice[..5]).is_err());
+        enc.push_slice(&slice).unwrap();
+        assert!(matches!(enc.finish(), Err(Error::BadParameter { .. })));
+        let mut enc = Encoder::new(&grid, Axis::Z, 0, &mut runs, &mut voxels, &mut scans).unwrap();
+        enc.push_slice(&slice).unwrap();
+        enc.push_slice(&slice).unwrap();
+        assert!(enc.push_slice(&slice).is_err());
+        let enc = enc.finish().unwrap();
+        assert_eq!(enc.parts().0, &[3, 0, 3, 0, 3, 0, 3, 0]);
+        // Too small arrays report the size needed.
+        let mut few = [0u8; 4];
+        let mut enc = Encoder::new(&grid, Axis::Z, 0, &mut few, &mut voxels, &mut scans).unwrap();
+        enc.push_slice(&slice).unwrap();
+        enc.push_slice(&slice).unwrap();
+        assert!(matches!(
+            enc.finish(),
+            Err(Error::BufferTooSmall { needed: 8, .. })
+        ));
+    }
 
     fn pseudo_random_volume(grid: &Grid, seed: u32) -> [Voxel; 600 * 3] {
         let mut s = seed;

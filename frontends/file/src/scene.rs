@@ -94,18 +94,15 @@ pub fn encode_threads(
         let mut runs = vec![0u8; nj * nk * (ni + 2)];
         let mut voxels = vec![Voxel::default(); visible];
         let mut scans = vec![ScanIndex::default(); nj * nk + 1];
-        let used = {
-            let enc = rle::encode(
-                &dense,
-                &grid,
-                axis,
-                threshold,
-                &mut runs,
-                &mut voxels,
-                &mut scans,
-            )?;
-            enc.parts().0.len()
-        };
+        let used = encode_slabs(
+            &dense,
+            &grid,
+            axis,
+            threshold,
+            &mut runs,
+            &mut voxels,
+            &mut scans,
+        )?;
         runs.truncate(used);
         runs.shrink_to_fit();
         Ok((runs, voxels, scans))
@@ -145,6 +142,114 @@ pub fn encode_threads(
         voxels,
         scans,
     })
+}
+
+/// x slices transposed together by [`encode_slabs`]: each volume row then gives 256
+/// contiguous bytes (four cache lines) per slab. Measured on a 256³ volume: 16 slices
+/// 93 ms, 32 slices 73 ms, 64 slices 67 ms for the x copy (the strided walk: 122 ms).
+const X_SLAB: usize = 64;
+
+/// Voxels in a 64-byte cache line: the padding between transposed slices.
+const LINE: usize = 16;
+
+/// `rle::encode` of `dense` along `axis`, returning the number of runs used. The x and y
+/// copies read the volume across its storage order; instead of walking it with a stride
+/// (which misses the cache on nearly every voxel), slices are transposed into a buffer a
+/// few at a time, reading the volume in order, and fed to the core's [`rle::Encoder`].
+/// The result is the same as `rle::encode` (tested).
+pub fn encode_slabs(
+    dense: &[Voxel],
+    grid: &Grid,
+    axis: Axis,
+    threshold: u8,
+    runs: &mut [u8],
+    voxels: &mut [Voxel],
+    scans: &mut [ScanIndex],
+) -> Result<usize, Error> {
+    let [nx, ny, nz] = grid.dims;
+    let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+    if dense.len() < grid.voxel_count() {
+        return Err(Error::BufferTooSmall {
+            what: "dense voxels",
+            needed: grid.voxel_count(),
+            got: dense.len(),
+        });
+    }
+    let mut enc = rle::Encoder::new(grid, axis, threshold, runs, voxels, scans)?;
+    let plane = ni * nj;
+    if axis == Axis::Z {
+        for k in 0..nk {
+            enc.push_slice(&dense[k * plane..(k + 1) * plane])?;
+        }
+    } else {
+        // An x slice uses one voxel of each volume row, so [`X_SLAB`] of them are
+        // gathered together, a cache line further apart than their size (so the lines a
+        // tile writes do not share a cache set). A y slice is gathered from whole rows
+        // of the volume, one slice at a time, which stays in the cache while it is
+        // written.
+        let (group, pitch) = match axis {
+            Axis::X => (X_SLAB, plane + LINE),
+            _ => (1, plane),
+        };
+        let mut slab = vec![Voxel::default(); group * pitch];
+        for k0 in (0..nk).step_by(group) {
+            let g = group.min(nk - k0);
+            if axis == Axis::X {
+                // Slice x = k0 + s holds (i, j) = (y, z): per z, the rows y of the
+                // volume become columns of the slices.
+                for z in 0..nz {
+                    let src = Strided {
+                        offset: z * ny * nx + k0,
+                        stride: nx,
+                    };
+                    let dst = Strided {
+                        offset: z * ny,
+                        stride: pitch,
+                    };
+                    transpose(dense, src, &mut slab, dst, [ny, g]);
+                }
+            } else {
+                // Slice y = k0 holds (i, j) = (z, x): the rows z of the volume become
+                // its columns.
+                let src = Strided {
+                    offset: k0 * nx,
+                    stride: nx * ny,
+                };
+                let dst = Strided {
+                    offset: 0,
+                    stride: nz,
+                };
+                transpose(dense, src, &mut slab, dst, [nz, nx]);
+            }
+            for s in 0..g {
+                enc.push_slice(&slab[s * pitch..s * pitch + plane])?;
+            }
+        }
+    }
+    Ok(enc.finish()?.parts().0.len())
+}
+
+/// A matrix inside a flat array: element `(r, c)` at `offset + r·stride + c`.
+#[derive(Clone, Copy)]
+struct Strided {
+    offset: usize,
+    stride: usize,
+}
+
+/// Writes the `rows × cols` matrix `src` transposed into `dst` (`dst(c, r) = src(r,
+/// c)`), in 16×16 tiles so that both sides touch whole cache lines.
+fn transpose(src: &[Voxel], s: Strided, dst: &mut [Voxel], d: Strided, [rows, cols]: [usize; 2]) {
+    const T: usize = 16;
+    for r0 in (0..rows).step_by(T) {
+        for c0 in (0..cols).step_by(T) {
+            for r in r0..(r0 + T).min(rows) {
+                let row = &src[s.offset + r * s.stride + c0..][..(c0 + T).min(cols) - c0];
+                for (c, v) in (c0..).zip(row) {
+                    dst[d.offset + c * d.stride + r] = *v;
+                }
+            }
+        }
+    }
 }
 
 /// Runs, voxels and scanline index of one axis copy.
@@ -896,5 +1001,46 @@ impl PostRenderer {
             &mut sink,
         )?;
         Ok(frame)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slab_encoding_equals_the_core_walk() {
+        // Sizes that are not multiples of the slab, and a pattern with runs of every
+        // length (split runs included: 300 voxels along x).
+        let grid = Grid::new([300, 7, 37], [1.0, 2.0, 0.5]).unwrap();
+        let n = grid.voxel_count();
+        let dense: Vec<Voxel> = (0..n)
+            .map(|i| {
+                let h = (i as u32).wrapping_mul(2_654_435_761) >> 24;
+                let opacity = if (i / 300) % 3 == 0 {
+                    200
+                } else {
+                    (h % 8) as u8 * 30
+                };
+                Voxel {
+                    opacity,
+                    scalar: h as u8,
+                    normal: (i % 8192) as u16,
+                }
+            })
+            .collect();
+        for axis in Axis::ALL {
+            let sz = rle::measure(&dense, &grid, axis, 40).unwrap();
+            let mut a = (
+                vec![0u8; sz.runs],
+                vec![Voxel::default(); sz.voxels],
+                vec![ScanIndex::default(); sz.scans],
+            );
+            let mut b = a.clone();
+            rle::encode(&dense, &grid, axis, 40, &mut a.0, &mut a.1, &mut a.2).unwrap();
+            let used = encode_slabs(&dense, &grid, axis, 40, &mut b.0, &mut b.1, &mut b.2);
+            assert_eq!(used.unwrap(), sz.runs, "{axis:?}");
+            assert!(a == b, "{axis:?}");
+        }
     }
 }

@@ -85,13 +85,19 @@ impl Classifier {
         axis: Axis,
     ) -> Result<AxisRle, Error> {
         let threshold = (class.min_opacity * 255.0).floor() as u8;
-        let sz = rle::measure(dense, &self.grid, axis, threshold)?;
+        // Runs for the worst case (zero pages until written) and trimmed, as
+        // `scene::encode` does; the slab encoder reads the volume in storage order.
+        let [ni, nj, nk] = axis.permuted_dims(self.grid.dims);
+        let visible = dense
+            .iter()
+            .filter(|v| rle::is_visible(v, threshold))
+            .count();
         let mut out = AxisRle {
-            runs: vec![0; sz.runs],
-            voxels: vec![Voxel::default(); sz.voxels],
-            scans: vec![ScanIndex::default(); sz.scans],
+            runs: vec![0; nj * nk * (ni + 2)],
+            voxels: vec![Voxel::default(); visible],
+            scans: vec![ScanIndex::default(); nj * nk + 1],
         };
-        rle::encode(
+        let used = shearwarp_file::scene::encode_slabs(
             dense,
             &self.grid,
             axis,
@@ -100,6 +106,8 @@ impl Classifier {
             &mut out.voxels,
             &mut out.scans,
         )?;
+        out.runs.truncate(used);
+        out.runs.shrink_to_fit();
         Ok(out)
     }
 
