@@ -138,6 +138,51 @@ impl RunWriter<'_> {
         self.emit(self.cur_len as u8);
         self.cur_len = 0;
     }
+    /// A run of `len` voxels of one kind: runs longer than 255 split as `push` splits
+    /// them (255, an empty run of the other kind, the rest).
+    fn emit_run(&mut self, mut len: usize) {
+        while len > 255 {
+            self.emit(255);
+            self.emit(0);
+            len -= 255;
+        }
+        self.emit(len as u8);
+    }
+    /// A whole scanline at once, run by run (the same output as `push` per voxel and
+    /// `end_scanline`, which the tests check): the visibility tests are a tight loop
+    /// and each visible run is copied in one go.
+    fn scanline(&mut self, row: &[Voxel], threshold: u8) {
+        debug_assert!(!self.cur_visible && self.cur_len == 0);
+        let mut i = 0;
+        loop {
+            let clear = row[i..]
+                .iter()
+                .position(|v| is_visible(v, threshold))
+                .unwrap_or(row.len() - i);
+            self.emit_run(clear);
+            i += clear;
+            if i == row.len() {
+                // Close on an empty visible run: runs come in pairs.
+                self.emit(0);
+                return;
+            }
+            let seen = row[i..]
+                .iter()
+                .position(|v| !is_visible(v, threshold))
+                .unwrap_or(row.len() - i);
+            self.emit_run(seen);
+            if let Some(out) = self.voxels.as_deref_mut() {
+                if let Some(dst) = out.get_mut(self.n_vox..self.n_vox + seen) {
+                    dst.copy_from_slice(&row[i..i + seen]);
+                }
+            }
+            self.n_vox += seen;
+            i += seen;
+            if i == row.len() {
+                return;
+            }
+        }
+    }
     fn end_scanline(&mut self) {
         self.flush();
         if self.cur_visible {
@@ -264,10 +309,12 @@ impl<'a> Encoder<'a> {
             return Ok(());
         }
         for row in slice.chunks_exact(ni) {
-            for v in row {
-                self.push(v);
-            }
-            self.end_scanline();
+            self.writer.scanline(row, self.threshold);
+            self.line += 1;
+            self.scans[self.line] = ScanIndex {
+                run: self.writer.n_runs as u32,
+                voxel: self.writer.n_vox as u32,
+            };
         }
         Ok(())
     }

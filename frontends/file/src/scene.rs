@@ -1011,16 +1011,16 @@ mod tests {
     #[test]
     fn slab_encoding_equals_the_core_walk() {
         // Sizes that are not multiples of the slab, and a pattern with runs of every
-        // length (split runs included: 300 voxels along x).
+        // length (split visible and transparent runs included: 300 voxels along x).
         let grid = Grid::new([300, 7, 37], [1.0, 2.0, 0.5]).unwrap();
         let n = grid.voxel_count();
         let dense: Vec<Voxel> = (0..n)
             .map(|i| {
                 let h = (i as u32).wrapping_mul(2_654_435_761) >> 24;
-                let opacity = if (i / 300) % 3 == 0 {
-                    200
-                } else {
-                    (h % 8) as u8 * 30
+                let opacity = match (i / 300) % 3 {
+                    0 => 200,
+                    1 => 0,
+                    _ => (h % 8) as u8 * 30,
                 };
                 Voxel {
                     opacity,
