@@ -173,7 +173,15 @@ impl RunWriter<'_> {
             self.emit_run(seen);
             if let Some(out) = self.voxels.as_deref_mut() {
                 if let Some(dst) = out.get_mut(self.n_vox..self.n_vox + seen) {
-                    dst.copy_from_slice(&row[i..i + seen]);
+                    let src = &row[i..i + seen];
+                    if seen < 16 {
+                        // Short runs are most runs: a loop beats a memmove call.
+                        for (d, v) in dst.iter_mut().zip(src) {
+                            *d = *v;
+                        }
+                    } else {
+                        dst.copy_from_slice(src);
+                    }
                 }
             }
             self.n_vox += seen;

@@ -240,12 +240,26 @@ struct Strided {
 /// c)`), in 16×16 tiles so that both sides touch whole cache lines.
 fn transpose(src: &[Voxel], s: Strided, dst: &mut [Voxel], d: Strided, [rows, cols]: [usize; 2]) {
     const T: usize = 16;
+    let mut tile = [[Voxel::default(); T]; T];
     for r0 in (0..rows).step_by(T) {
+        let tr = T.min(rows - r0);
         for c0 in (0..cols).step_by(T) {
-            for r in r0..(r0 + T).min(rows) {
-                let row = &src[s.offset + r * s.stride + c0..][..(c0 + T).min(cols) - c0];
-                for (c, v) in (c0..).zip(row) {
-                    dst[d.offset + c * d.stride + r] = *v;
+            let tc = T.min(cols - c0);
+            // Whole tile rows in, whole tile columns out: both sides move contiguous
+            // runs of voxels, and the shuffle happens in the local tile.
+            for (r, line) in tile.iter_mut().enumerate().take(tr) {
+                let at = s.offset + (r0 + r) * s.stride + c0;
+                let from = &src[at..at + tc];
+                match <&[Voxel; T]>::try_from(from) {
+                    // A fixed-size copy: a few vector moves instead of a memmove call.
+                    Ok(full) => *line = *full,
+                    Err(_) => line[..tc].copy_from_slice(from),
+                }
+            }
+            for c in 0..tc {
+                let at = d.offset + (c0 + c) * d.stride + r0;
+                for (o, line) in dst[at..at + tr].iter_mut().zip(&tile) {
+                    *o = line[c];
                 }
             }
         }
