@@ -351,6 +351,23 @@ pub fn classify(
     gradient_table: Option<&[u16; 256]>,
     out: &mut [Voxel],
 ) -> Result<(), Error> {
+    classify_above(grid, scalars, opacity_table, gradient_table, None, out)
+}
+
+/// [`classify`] for a volume that will be run-length encoded with opacity threshold
+/// `threshold` ([`crate::rle::is_visible`]): voxels at or below it are dropped by the
+/// encoder, so their normal is not computed (their record holds
+/// [`normal::ZERO_GRADIENT`]; opacity and scalar are as [`classify`] gives them). The
+/// normal's two divisions are most of a voxel's cost, and most voxels of a typical
+/// volume are transparent.
+pub fn classify_above(
+    grid: &Grid,
+    scalars: Scalars<'_>,
+    opacity_table: &[u8],
+    gradient_table: Option<&[u16; 256]>,
+    threshold: Option<u8>,
+    out: &mut [Voxel],
+) -> Result<(), Error> {
     let n = grid.voxel_count();
     if scalars.len() != n {
         return Err(Error::BadDimensions {
@@ -366,6 +383,7 @@ pub fn classify(
         quant: quantizer(range),
         opacity_table,
         gradient_table,
+        normals_above: threshold,
     };
     match scalars {
         Scalars::U8(d) => k.run(d, &mut out[..n]),
@@ -382,6 +400,8 @@ struct Kernel<'a> {
     quant: (u32, u32),
     opacity_table: &'a [u8],
     gradient_table: Option<&'a [u16; 256]>,
+    /// Normals only for opacities above this.
+    normals_above: Option<u8>,
 }
 
 impl Kernel<'_> {
@@ -471,10 +491,15 @@ impl Kernel<'_> {
         }
         let (q_off, q_mul) = self.quant;
         let q = (((v as u32).wrapping_sub(q_off) * q_mul + (1 << 15)) >> 16).min(255);
+        let needed = self.normals_above.is_none_or(|t| alpha as u8 > t);
         Voxel {
             opacity: alpha as u8,
             scalar: q as u8,
-            normal: normal::encode(g[0], g[1], g[2]),
+            normal: if needed {
+                normal::encode(g[0], g[1], g[2])
+            } else {
+                normal::ZERO_GRADIENT
+            },
         }
     }
 }
@@ -598,6 +623,18 @@ mod tests {
                             };
                             assert_eq!(out[(z * ny + y) * nx + x], want, "{dims:?} ({x},{y},{z})");
                         }
+                    }
+                }
+                // With a threshold, the records the encoder keeps are the same and the
+                // others differ at most in their (unused) normal.
+                let mut above = std::vec![Voxel::default(); n];
+                classify_above(&grid, scalars, &table, Some(&gt), Some(90), &mut above).unwrap();
+                for (a, full) in above.iter().zip(&out) {
+                    if full.opacity > 90 {
+                        assert_eq!(a, full);
+                    } else {
+                        let z = normal::ZERO_GRADIENT;
+                        assert_eq!(*a, Voxel { normal: z, ..*full });
                     }
                 }
             }

@@ -81,7 +81,9 @@ pub fn encode_threads(
     }
     let threshold = (class.min_opacity * 255.0).floor() as u8;
     let mut dense = vec![Voxel::default(); grid.voxel_count()];
-    classify::classify(&grid, scalars, &table, gtable.as_ref(), &mut dense)?;
+    // Only the encoded (visible) voxels need a normal.
+    let (t, g) = (Some(threshold), gtable.as_ref());
+    classify::classify_above(&grid, scalars, &table, g, t, &mut dense)?;
     // Every axis copy holds the same visible voxels; runs are allocated for the worst
     // case (`ni + 2` per scanline, zero pages until written) and trimmed, so no counting
     // pass is needed. The three copies are encoded on up to three threads.
