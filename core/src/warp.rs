@@ -194,6 +194,11 @@ fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u32; 4] {
         let base = (v0 * iw + u0) as usize;
         let w = iw as usize;
         if let (Some(top), Some(bot)) = (px.get(base..base + 2), px.get(base + w..base + w + 2)) {
+            // Empty background (most of a frame around a small volume) needs no weights.
+            let any = |p: &Rgba| p.iter().fold(0, |a, &c| a | c);
+            if any(&top[0]) | any(&top[1]) | any(&bot[0]) | any(&bot[1]) == 0 {
+                return [0; 4];
+            }
             for c in 0..4 {
                 acc[c] = wts[0] * top[0][c] as u32
                     + wts[1] * top[1][c] as u32
