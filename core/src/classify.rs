@@ -355,11 +355,13 @@ pub fn classify(
 }
 
 /// [`classify`] for a volume that will be run-length encoded with opacity threshold
-/// `threshold` ([`crate::rle::is_visible`]): voxels at or below it are dropped by the
-/// encoder, so their normal is not computed (their record holds
-/// [`normal::ZERO_GRADIENT`]; opacity and scalar are as [`classify`] gives them). The
-/// normal's two divisions are most of a voxel's cost, and most voxels of a typical
-/// volume are transparent.
+/// `threshold` ([`crate::rle::is_visible`]): the records of voxels above it are those
+/// of [`classify`]; voxels at or below it are dropped by the encoder, so their normal is
+/// not computed (their record holds [`normal::ZERO_GRADIENT`], their scalar, and an
+/// opacity at or below the threshold). When the opacity table alone puts a voxel at or
+/// below the threshold (a gradient factor only lowers it), its gradient is skipped too.
+/// The gradient's six reads and the normal's two divisions are most of a voxel's cost,
+/// and most voxels of a typical volume are transparent.
 pub fn classify_above(
     grid: &Grid,
     scalars: Scalars<'_>,
@@ -445,6 +447,10 @@ impl Kernel<'_> {
             }
         };
         let idx = (z * ny + y) * nx + x;
+        if let Some(dropped) = self.dropped(at(idx)) {
+            dst[x] = dropped;
+            return;
+        }
         let g = [
             diff(idx, x, nx, 1) * self.w[0],
             diff(idx, y, ny, nx) * self.w[1],
@@ -468,6 +474,10 @@ impl Kernel<'_> {
         let at = |i: usize| -> i64 { src[i].into() as i64 };
         for (x, o) in dst.iter_mut().enumerate().take(nx - 1).skip(1) {
             let i = c + x;
+            if let Some(dropped) = self.dropped(at(i)) {
+                *o = dropped;
+                continue;
+            }
             let g = [
                 (at(i + 1) - at(i - 1)) * self.w[0],
                 (at(i + sy) - at(i - sy)) * self.w[1],
@@ -475,6 +485,26 @@ impl Kernel<'_> {
             ];
             *o = self.record(at(i), g);
         }
+    }
+
+    /// With a threshold: the record of a voxel of value `v` whose opacity before the
+    /// gradient factor (which only lowers it) is already at or below the threshold, so
+    /// that the encoder drops it whatever its gradient. The gradient is not computed.
+    #[inline(always)]
+    fn dropped(&self, v: i64) -> Option<Voxel> {
+        let t = self.normals_above?;
+        let alpha = self.opacity_table.get(v as usize).copied().unwrap_or(0);
+        (alpha <= t).then(|| Voxel {
+            opacity: alpha,
+            scalar: self.quantize(v),
+            normal: normal::ZERO_GRADIENT,
+        })
+    }
+
+    #[inline(always)]
+    fn quantize(&self, v: i64) -> u8 {
+        let (q_off, q_mul) = self.quant;
+        (((v as u32).wrapping_sub(q_off) * q_mul + (1 << 15)) >> 16).min(255) as u8
     }
 
     /// The record of a voxel of value `v` and gradient `g` (weighted differences).
@@ -489,12 +519,10 @@ impl Kernel<'_> {
             let f = gt[mag.min(255) as usize] as u32;
             alpha = fixed::mul(alpha, f);
         }
-        let (q_off, q_mul) = self.quant;
-        let q = (((v as u32).wrapping_sub(q_off) * q_mul + (1 << 15)) >> 16).min(255);
         let needed = self.normals_above.is_none_or(|t| alpha as u8 > t);
         Voxel {
             opacity: alpha as u8,
-            scalar: q as u8,
+            scalar: self.quantize(v),
             normal: if needed {
                 normal::encode(g[0], g[1], g[2])
             } else {
@@ -625,16 +653,16 @@ mod tests {
                         }
                     }
                 }
-                // With a threshold, the records the encoder keeps are the same and the
-                // others differ at most in their (unused) normal.
+                // With a threshold, the records the encoder keeps are the same; the
+                // others keep their scalar and stay at or below the threshold.
                 let mut above = std::vec![Voxel::default(); n];
                 classify_above(&grid, scalars, &table, Some(&gt), Some(90), &mut above).unwrap();
                 for (a, full) in above.iter().zip(&out) {
                     if full.opacity > 90 {
                         assert_eq!(a, full);
                     } else {
-                        let z = normal::ZERO_GRADIENT;
-                        assert_eq!(*a, Voxel { normal: z, ..*full });
+                        assert!(a.opacity <= 90, "{a:?}");
+                        assert_eq!((a.scalar, a.normal), (full.scalar, normal::ZERO_GRADIENT));
                     }
                 }
             }
