@@ -84,31 +84,13 @@ pub fn encode_threads(
     // Only the encoded (visible) voxels need a normal.
     let (t, g) = (Some(threshold), gtable.as_ref());
     classify::classify_above(&grid, scalars, &table, g, t, &mut dense)?;
-    // Every axis copy holds the same visible voxels; runs are allocated for the worst
-    // case (`ni + 2` per scanline, zero pages until written) and trimmed, so no counting
-    // pass is needed. The three copies are encoded on up to three threads.
+    // Every axis copy holds the same visible voxels, counted once. The three copies are
+    // encoded on up to three threads.
     let visible = dense
         .iter()
         .filter(|v| rle::is_visible(v, threshold))
         .count();
-    let encode_axis = |axis: Axis| -> Result<AxisArrays, Error> {
-        let [ni, nj, nk] = axis.permuted_dims(grid.dims);
-        let mut runs = vec![0u8; nj * nk * (ni + 2)];
-        let mut voxels = vec![Voxel::default(); visible];
-        let mut scans = vec![ScanIndex::default(); nj * nk + 1];
-        let used = encode_slabs(
-            &dense,
-            &grid,
-            axis,
-            threshold,
-            &mut runs,
-            &mut voxels,
-            &mut scans,
-        )?;
-        runs.truncate(used);
-        runs.shrink_to_fit();
-        Ok((runs, voxels, scans))
-    };
+    let encode_axis = |axis: Axis| encode_axis(&dense, &grid, axis, threshold, visible);
     let parts: Vec<Result<_, Error>> = if threads <= 1 {
         Axis::ALL.into_iter().map(encode_axis).collect()
     } else {
@@ -144,6 +126,35 @@ pub fn encode_threads(
         voxels,
         scans,
     })
+}
+
+/// The run-length copy of `dense` along `axis` as owned arrays, for a volume with
+/// `visible` voxels above `threshold` ([`rle::is_visible`]): runs are allocated for the
+/// worst case (`ni + 2` per scanline, zero pages until written) and trimmed, so no
+/// counting pass is needed.
+pub fn encode_axis(
+    dense: &[Voxel],
+    grid: &Grid,
+    axis: Axis,
+    threshold: u8,
+    visible: usize,
+) -> Result<AxisArrays, Error> {
+    let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+    let mut runs = vec![0u8; nj * nk * (ni + 2)];
+    let mut voxels = vec![Voxel::default(); visible];
+    let mut scans = vec![ScanIndex::default(); nj * nk + 1];
+    let used = encode_slabs(
+        dense,
+        grid,
+        axis,
+        threshold,
+        &mut runs,
+        &mut voxels,
+        &mut scans,
+    )?;
+    runs.truncate(used);
+    runs.shrink_to_fit();
+    Ok((runs, voxels, scans))
 }
 
 /// x slices transposed together by [`encode_slabs`]: each volume row then gives 256
@@ -269,7 +280,7 @@ fn transpose(src: &[Voxel], s: Strided, dst: &mut [Voxel], d: Strided, [rows, co
 }
 
 /// Runs, voxels and scanline index of one axis copy.
-type AxisArrays = (Vec<u8>, Vec<Voxel>, Vec<ScanIndex>);
+pub type AxisArrays = (Vec<u8>, Vec<Voxel>, Vec<ScanIndex>);
 
 /// Level `level` of `raw`'s level-of-detail pyramid (0: `raw` itself), built with the
 /// core's centred 2×2×2 means ([`shearwarp_core::lod`]); returns the volume and its grid,

@@ -12,7 +12,7 @@ use shearwarp_core::classify::{self, Grid, OpacityTf, Scalars, Voxel};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::source::RleVolume;
 use shearwarp_core::Error;
-use shearwarp_file::scene::Classification;
+use shearwarp_file::scene::{self, Classification};
 use shearwarp_file::volume::{RawVolume, Voxels};
 use std::sync::Arc;
 use std::time::Instant;
@@ -76,41 +76,6 @@ impl Classifier {
         })
     }
 
-    /// Run-length encodes the copy for `axis` of `dense` (from [`Classifier::relabel`]
-    /// under `class`).
-    pub fn encode_axis(
-        &self,
-        dense: &[Voxel],
-        class: &Classification,
-        axis: Axis,
-    ) -> Result<AxisRle, Error> {
-        let threshold = (class.min_opacity * 255.0).floor() as u8;
-        // Runs for the worst case (zero pages until written) and trimmed, as
-        // `scene::encode` does; the slab encoder reads the volume in storage order.
-        let [ni, nj, nk] = axis.permuted_dims(self.grid.dims);
-        let visible = dense
-            .iter()
-            .filter(|v| rle::is_visible(v, threshold))
-            .count();
-        let mut out = AxisRle {
-            runs: vec![0; nj * nk * (ni + 2)],
-            voxels: vec![Voxel::default(); visible],
-            scans: vec![ScanIndex::default(); nj * nk + 1],
-        };
-        let used = shearwarp_file::scene::encode_slabs(
-            dense,
-            &self.grid,
-            axis,
-            threshold,
-            &mut out.runs,
-            &mut out.voxels,
-            &mut out.scans,
-        )?;
-        out.runs.truncate(used);
-        out.runs.shrink_to_fit();
-        Ok(out)
-    }
-
     /// Encodes `axes` under `class`, reusing `dense` if it was relabelled for `class`.
     pub fn encode_axes(
         &self,
@@ -123,9 +88,26 @@ impl Classifier {
             Some(d) => d,
             None => Arc::new(self.relabel(class)?),
         };
+        // The file frontend's encoder: it reads the volume in storage order.
+        let threshold = (class.min_opacity * 255.0).floor() as u8;
+        let visible = dense
+            .iter()
+            .filter(|v| rle::is_visible(v, threshold))
+            .count();
         let axes = axes
             .iter()
-            .map(|&a| Ok((a, self.encode_axis(&dense, class, a)?)))
+            .map(|&a| {
+                let (runs, voxels, scans) =
+                    scene::encode_axis(&dense, &self.grid, a, threshold, visible)?;
+                Ok((
+                    a,
+                    AxisRle {
+                        runs,
+                        voxels,
+                        scans,
+                    },
+                ))
+            })
             .collect::<Result<Vec<_>, Error>>()?;
         Ok(Encoding {
             class: class.clone(),
