@@ -447,7 +447,9 @@ impl Kernel<'_> {
             }
         };
         let idx = (z * ny + y) * nx + x;
-        if let Some(dropped) = self.dropped(at(idx)) {
+        let v = at(idx);
+        let alpha = self.table_alpha(v);
+        if let Some(dropped) = self.dropped(v, alpha) {
             dst[x] = dropped;
             return;
         }
@@ -456,7 +458,7 @@ impl Kernel<'_> {
             diff(idx, y, ny, nx) * self.w[1],
             diff(idx, z, nz, nx * ny) * self.w[2],
         ];
-        dst[x] = self.record(at(idx), g);
+        dst[x] = self.record(v, alpha, g);
     }
 
     /// Voxels `1..nx − 1` of a row whose neighbours exist on every axis; `src` starts
@@ -474,7 +476,9 @@ impl Kernel<'_> {
         let at = |i: usize| -> i64 { src[i].into() as i64 };
         for (x, o) in dst.iter_mut().enumerate().take(nx - 1).skip(1) {
             let i = c + x;
-            if let Some(dropped) = self.dropped(at(i)) {
+            let v = at(i);
+            let alpha = self.table_alpha(v);
+            if let Some(dropped) = self.dropped(v, alpha) {
                 *o = dropped;
                 continue;
             }
@@ -483,17 +487,23 @@ impl Kernel<'_> {
                 (at(i + sy) - at(i - sy)) * self.w[1],
                 (at(i + sz) - at(i - sz)) * self.w[2],
             ];
-            *o = self.record(at(i), g);
+            *o = self.record(v, alpha, g);
         }
     }
 
-    /// With a threshold: the record of a voxel of value `v` whose opacity before the
-    /// gradient factor (which only lowers it) is already at or below the threshold, so
-    /// that the encoder drops it whatever its gradient. The gradient is not computed.
+    /// The opacity table's entry for value `v`, before any gradient factor.
     #[inline(always)]
-    fn dropped(&self, v: i64) -> Option<Voxel> {
+    fn table_alpha(&self, v: i64) -> u8 {
+        self.opacity_table.get(v as usize).copied().unwrap_or(0)
+    }
+
+    /// With a threshold: the record of a voxel of value `v` whose opacity before the
+    /// gradient factor (`alpha`, which the factor only lowers) is already at or below
+    /// the threshold, so that the encoder drops it whatever its gradient. The gradient
+    /// is not computed.
+    #[inline(always)]
+    fn dropped(&self, v: i64, alpha: u8) -> Option<Voxel> {
         let t = self.normals_above?;
-        let alpha = self.opacity_table.get(v as usize).copied().unwrap_or(0);
         (alpha <= t).then(|| Voxel {
             opacity: alpha,
             scalar: self.quantize(v),
@@ -507,10 +517,11 @@ impl Kernel<'_> {
         (((v as u32).wrapping_sub(q_off) * q_mul + (1 << 15)) >> 16).min(255) as u8
     }
 
-    /// The record of a voxel of value `v` and gradient `g` (weighted differences).
+    /// The record of a voxel of value `v`, table opacity `alpha` and gradient `g`
+    /// (weighted differences).
     #[inline(always)]
-    fn record(&self, v: i64, g: [i64; 3]) -> Voxel {
-        let mut alpha = self.opacity_table.get(v as usize).copied().unwrap_or(0) as u32;
+    fn record(&self, v: i64, alpha: u8, g: [i64; 3]) -> Voxel {
+        let mut alpha = alpha as u32;
         if let Some(gt) = self.gradient_table {
             // |g| in raw units per opacity unit: the differences span 2 voxels and the
             // weights carry 2^12.
