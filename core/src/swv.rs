@@ -117,6 +117,22 @@ pub struct Look {
     pub lighting: Option<Lighting>,
 }
 
+impl Look {
+    /// The settings a file renders with by default: its colours and lighting,
+    /// front-to-back compositing, early ray termination at 0.95, no depth cueing and
+    /// no shadows (callers change fields as they need).
+    pub fn settings(&self) -> crate::render::Settings<'_> {
+        crate::render::Settings {
+            mode: crate::composite::Mode::Composite,
+            color: &self.color,
+            lighting: self.lighting.as_ref(),
+            ert_threshold: 0.95,
+            depth_cue: None,
+            shadows: false,
+        }
+    }
+}
+
 /// Parsed header and look block.
 #[derive(Clone, Debug)]
 pub struct Header {
@@ -797,8 +813,7 @@ mod tests {
     extern crate std;
     use super::*;
     use crate::classify::{self, OpacityTf, Scalars};
-    use crate::composite::Mode;
-    use crate::render::{render, Settings, StaticWorkspace};
+    use crate::render::{render, StaticWorkspace};
     use crate::rle::{self, RleAxis};
     use crate::view::Camera;
     use crate::warp::FrameBuffer;
@@ -897,14 +912,7 @@ mod tests {
             width: 32,
             height: 32,
         };
-        let settings = Settings {
-            mode: Mode::Composite,
-            color: &lk.color,
-            lighting: lk.lighting.as_ref(),
-            ert_threshold: 0.95,
-            depth_cue: None,
-            shadows: false,
-        };
+        let settings = lk.settings();
         let mut ws = std::boxed::Box::new(StaticWorkspace::<2000, 64, 32>::new());
         let mut px = vec![[0u8; 4]; 32 * 32];
         let mut sink = FrameBuffer {
@@ -1071,14 +1079,7 @@ mod tests {
             width: 16,
             height: 16,
         };
-        let settings = Settings {
-            mode: Mode::Composite,
-            color: &lk.color,
-            lighting: lk.lighting.as_ref(),
-            ert_threshold: 0.95,
-            depth_cue: None,
-            shadows: false,
-        };
+        let settings = lk.settings();
         let mut ws = std::boxed::Box::new(StaticWorkspace::<2000, 64, 16>::new());
         let mut px = vec![[0u8; 4]; 256];
         let mut sink = FrameBuffer {

@@ -175,11 +175,9 @@ fn run(data: &[u8]) {
         for (rx, ry, mode, depth_cue, shadows) in frames {
             let settings = Settings {
                 mode,
-                color: &look.color,
-                lighting: look.lighting.as_ref(),
-                ert_threshold: 0.95,
                 depth_cue,
                 shadows,
+                ..look.settings()
             };
             let cam = Camera {
                 rotate_x: rx,
@@ -215,14 +213,7 @@ fn run(data: &[u8]) {
         // Perspective: a parameter error (too strong a perspective) or a buffer error
         // is fine; a frame that renders must keep colour within alpha.
         let fov = 1.0 + (data.len() % 150) as f64;
-        let settings = Settings {
-            mode: Mode::Composite,
-            color: &look.color,
-            lighting: look.lighting.as_ref(),
-            ert_threshold: 0.95,
-            depth_cue: None,
-            shadows: false,
-        };
+        let settings = look.settings();
         let cam = Camera {
             rotate_x: 20.0 + (data.len() % 7) as f64 * 40.0,
             rotate_y: -35.0,

@@ -3,9 +3,8 @@
 #![allow(dead_code)]
 
 use shearwarp_core::classify::{self, ColorTable, Grid, OpacityTf, Scalars, Voxel};
-use shearwarp_core::composite::Mode;
 use shearwarp_core::io::{Crc32, IoError, SliceReader};
-use shearwarp_core::render::{render, Settings, StaticWorkspace};
+use shearwarp_core::render::{render, StaticWorkspace};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::Lighting;
 use shearwarp_core::source::RleVolume;
@@ -171,14 +170,7 @@ pub fn open_and_render(bytes: &[u8]) -> Result<Vec<[u8; 4]>, Error> {
     let mut px = vec![[0u8; 4]; IMG * IMG];
     // Principal x, y, z (for moderate spacings), then an oblique view.
     for (rx, ry) in [(5.0, 85.0), (85.0, 5.0), (5.0, 5.0), (25.0, -40.0)] {
-        let settings = Settings {
-            mode: Mode::Composite,
-            color: &look.color,
-            lighting: look.lighting.as_ref(),
-            ert_threshold: 0.95,
-            depth_cue: None,
-            shadows: false,
-        };
+        let settings = look.settings();
         let cam = Camera {
             rotate_x: rx,
             rotate_y: ry,

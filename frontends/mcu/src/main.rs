@@ -12,9 +12,9 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::{debug, hprintln};
-use shearwarp_core::composite::{self, Mode};
+use shearwarp_core::composite;
 use shearwarp_core::io::SliceReader;
-use shearwarp_core::render::{render, Settings, StaticWorkspace};
+use shearwarp_core::render::{render, StaticWorkspace};
 use shearwarp_core::swv::{self, StreamSource};
 use shearwarp_core::view::{self, Camera};
 use shearwarp_core::warp::FrameBuffer;
@@ -71,14 +71,7 @@ fn run() -> Result<(), &'static str> {
         cortex_m::singleton!(: [[u8; 4]; W * H] = [[0; 4]; W * H]).ok_or("frame")?;
 
     let look = source.header().look.clone();
-    let settings = Settings {
-        mode: Mode::Composite,
-        color: &look.color,
-        lighting: look.lighting.as_ref(),
-        ert_threshold: 0.95,
-        depth_cue: None,
-        shadows: false,
-    };
+    let settings = look.settings();
 
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(0x00FF_FFFF);
