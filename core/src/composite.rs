@@ -8,9 +8,9 @@
 //! Work is skipped in two ways, both exact:
 //! - the run-length-encoded voxel scanlines are walked in lockstep and only pixels whose
 //!   footprint touches a non-transparent voxel are visited;
-//! - pixels that reached the early-ray-termination opacity are linked over: each opaque
-//!   pixel stores the distance to the next pixel that may still change, and the distances
-//!   are path-compressed as they are followed (Lacroute's offset array).
+//! - pixels that reached the early-ray-termination opacity are skipped through a bitmap
+//!   of opaque pixels ([`crate::opaque`]), which also tells each voxel row which of its
+//!   voxels an open pixel will read, so only those are shaded.
 //!
 //! All arithmetic is Q15 integer. Voxel colours are shaded once per voxel row and slice
 //! into a row buffer (premultiplied RGBA); each row is used by two intermediate scanlines.
@@ -18,6 +18,7 @@
 use crate::classify::{ColorTable, Voxel};
 use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
+use crate::opaque;
 use crate::rle::RleSlice;
 use crate::shade::ShadeTable;
 use crate::shadow::ShadowLookup;
@@ -59,8 +60,8 @@ pub struct SliceTables<'a> {
     pub ray_gain: Option<&'a crate::perspective::RayGain>,
 }
 
-/// The intermediate image, or a band of its scanlines: pixels plus the opaque-pixel
-/// links. Bands let several threads composite disjoint scanline ranges of one frame into
+/// The intermediate image, or a band of its scanlines: pixels plus the bitmap of opaque
+/// pixels. Bands let several threads composite disjoint scanline ranges of one frame into
 /// caller-owned memory (Lacroute 1995, ch. 6 partitions the intermediate image the same
 /// way).
 pub struct Intermediate<'a> {
@@ -69,11 +70,16 @@ pub struct Intermediate<'a> {
     row0: usize,
     rows: usize,
     pub(crate) pixels: &'a mut [Rgba],
-    links: &'a mut [u16],
+    /// Opaque-pixel bitmap, [`opaque::words`]`(width)` words per scanline.
+    opaque: &'a mut [u16],
+    stride: usize,
 }
 
 impl<'a> Intermediate<'a> {
-    /// Borrows buffers of at least `width·height` entries each and clears them.
+    /// Borrows buffers of at least `width·height` entries each and clears them. `links`
+    /// holds the opaque-pixel bitmap (it needs only [`opaque::words`]`(width)` entries per
+    /// scanline; the length asked for is the one the per-pixel links of earlier versions
+    /// took, so existing callers keep working).
     pub fn new(
         width: usize,
         height: usize,
@@ -104,19 +110,21 @@ impl<'a> Intermediate<'a> {
             });
         }
         let n = width * rows;
+        let stride = opaque::words(width);
         need("intermediate pixels", n, pixels.len())?;
-        need("intermediate links", n, links.len())?;
+        need("intermediate links", stride * rows, links.len())?;
         let pixels = &mut pixels[..n];
-        let links = &mut links[..n];
+        let opaque = &mut links[..stride * rows];
         pixels.fill([0; 4]);
-        links.fill(0);
+        opaque.fill(0);
         Ok(Intermediate {
             width,
             height,
             row0,
             rows,
             pixels,
-            links,
+            opaque,
+            stride,
         })
     }
 
@@ -137,17 +145,20 @@ impl<'a> Intermediate<'a> {
         self.pixels
     }
 
-    /// Opaque-pixel links of the held scanlines (non-zero: opaque), row-major.
-    pub(crate) fn links(&self) -> &[u16] {
-        self.links
+    /// The opaque-pixel bitmap of held scanline `r` (relative to the band), or an empty
+    /// slice (every pixel open) past the band.
+    pub(crate) fn opaque_line(&self, r: usize) -> &[u16] {
+        self.opaque
+            .get(r * self.stride..(r + 1) * self.stride)
+            .unwrap_or_default()
     }
 
-    /// Pixels and links of the held scanline starting at pixel index `line` (relative to
-    /// the band), `width` long.
-    pub(crate) fn scanline_mut(&mut self, line: usize, width: usize) -> (&mut [Rgba], &mut [u16]) {
+    /// Pixels and opaque-pixel bitmap of held scanline `r` (relative to the band).
+    pub(crate) fn scanline_mut(&mut self, r: usize) -> (&mut [Rgba], &mut [u16]) {
+        let w = self.width;
         (
-            &mut self.pixels[line..line + width],
-            &mut self.links[line..line + width],
+            &mut self.pixels[r * w..(r + 1) * w],
+            &mut self.opaque[r * self.stride..(r + 1) * self.stride],
         )
     }
 
@@ -284,7 +295,7 @@ impl<'b> Row<'b> {
         scale: u32,
         j: i64,
         shadow: Option<&ShadowLookup<'_>>,
-        mut needed: Option<&mut Needed<'_>>,
+        needed: Option<&Needed<'_>>,
     ) {
         self.clear();
         let mut v = 0usize;
@@ -293,7 +304,7 @@ impl<'b> Row<'b> {
         for (a, b) in Spans::new(runs) {
             let base = v;
             v += b - a;
-            match needed.as_deref_mut() {
+            match needed {
                 None => {
                     lo = lo.min(a + 1);
                     hi = b + 1;
@@ -301,30 +312,16 @@ impl<'b> Row<'b> {
                     shade_run(&mut self.buf[a + 1..b + 1], src, a, t, scale, j, shadow);
                 }
                 Some(n) => {
-                    // Shade only the voxel intervals that open pixels of the reading
-                    // scanlines reach (opaque runs are jumped through their links).
-                    let [l0, l1] = &mut n.lines;
-                    let mut runs0 = voxel_runs(l0.as_deref_mut(), n.shift, a, b).peekable();
-                    let mut runs1 = voxel_runs(l1.as_deref_mut(), n.shift, a, b).peekable();
-                    let mut pending: Option<(usize, usize)> = None;
-                    loop {
-                        let next = match (runs0.peek(), runs1.peek()) {
-                            (Some(x), Some(y)) if x.0 <= y.0 => runs0.next(),
-                            (Some(_), Some(_)) => runs1.next(),
-                            (Some(_), None) => runs0.next(),
-                            (None, _) => runs1.next(),
-                        };
-                        let flush = match (pending, next) {
-                            (Some(p), Some(q)) if q.0 <= p.1 => {
-                                pending = Some((p.0, p.1.max(q.1)));
-                                None
-                            }
-                            (p, q) => {
-                                pending = q;
-                                p
-                            }
-                        };
-                        if let Some((c, d)) = flush {
+                    // Shade only the voxels that open pixels of the reading scanlines
+                    // reach, 64 at a time from the opaque-pixel bitmaps.
+                    let mut x = a;
+                    while x < b {
+                        let mut m = n.voxels(x) & opaque::ones(b - x);
+                        while m != 0 {
+                            let z = m.trailing_zeros() as usize;
+                            let len = (!(m >> z)).trailing_zeros() as usize;
+                            let (c, d) = (x + z, x + z + len);
+                            m &= !opaque::ones(z + len);
                             // The extent covers shaded voxels only: the others stay
                             // zero, and zero taps leave a pixel as it is.
                             lo = lo.min(c + 1);
@@ -332,9 +329,7 @@ impl<'b> Row<'b> {
                             let src = &voxels[base + (c - a)..base + (d - a)];
                             shade_run(&mut self.buf[c + 1..d + 1], src, c, t, scale, j, shadow);
                         }
-                        if pending.is_none() {
-                            break;
-                        }
+                        x += 64;
                     }
                 }
             }
@@ -345,79 +340,35 @@ impl<'b> Row<'b> {
     }
 }
 
-/// Which voxels of a row some non-opaque pixel reads: voxel `i` feeds pixels `i + shift`
-/// and `i + shift + 1` of the (up to two) scanlines that use the row. The links are
-/// borrowed mutably so that walking them compresses their paths, as compositing does.
+/// Which voxels of a row some open pixel reads: voxel `i` feeds pixels `i + shift` and
+/// `i + shift + 1` of the (up to two) scanlines that use the row.
 pub(crate) struct Needed<'a> {
-    lines: [Option<&'a mut [u16]>; 2],
+    lines: [Option<&'a [u16]>; 2],
+    width: usize,
     shift: i64,
 }
 
 impl<'a> Needed<'a> {
-    /// The scanlines `v0` and `v0 + 1` of the band holding `links` (`width` per line,
-    /// first line `band.0`), where they lie in the band.
-    fn lines(links: &'a mut [u16], v0: i64, band: (i64, i64), width: usize, shift: i64) -> Self {
-        let at = |v: i64| (v >= band.0 && v < band.1).then(|| (v - band.0) as usize * width);
-        let lines = match (at(v0), at(v0 + 1)) {
-            (Some(a), Some(_)) => {
-                let (l0, l1) = links[a..a + 2 * width].split_at_mut(width);
-                [Some(l0), Some(l1)]
-            }
-            (Some(a), None) => [Some(&mut links[a..a + width]), None],
-            (None, Some(b)) => [None, Some(&mut links[b..b + width])],
-            (None, None) => [None, None],
-        };
-        Needed { lines, shift }
-    }
-}
-
-/// Voxel intervals within `[a, b)` that non-opaque pixels of one scanline read, in
-/// increasing order: an open pixel run `[p, q)` reads voxels `[p − shift − 1, q −
-/// shift)`.
-fn voxel_runs<'l>(links: Option<&'l mut [u16]>, shift: i64, a: usize, b: usize) -> OpenRuns<'l> {
-    let links = links.unwrap_or_default();
-    let lo = (a as i64 + shift).clamp(0, links.len() as i64) as usize;
-    let hi = (b as i64 + shift + 1).clamp(0, links.len() as i64) as usize;
-    OpenRuns {
-        links,
-        pos: lo,
-        end: hi,
-        shift,
-        voxels: (a, b),
-    }
-}
-
-/// Iterator behind [`voxel_runs`].
-pub(crate) struct OpenRuns<'a> {
-    links: &'a mut [u16],
-    pos: usize,
-    end: usize,
-    shift: i64,
-    voxels: (usize, usize),
-}
-
-impl Iterator for OpenRuns<'_> {
-    type Item = (usize, usize);
-    #[inline]
-    fn next(&mut self) -> Option<(usize, usize)> {
-        loop {
-            // Jump over opaque pixels, compressing the links' paths.
-            if self.pos < self.end && self.links[self.pos] != 0 {
-                self.pos = skip_opaque(self.links, self.pos);
-            }
-            if self.pos >= self.end {
-                return None;
-            }
-            let p = self.pos;
-            while self.pos < self.end && self.links[self.pos] == 0 {
-                self.pos += 1;
-            }
-            let v0 = (p as i64 - self.shift - 1).max(self.voxels.0 as i64) as usize;
-            let v1 = (self.pos as i64 - self.shift).min(self.voxels.1 as i64) as usize;
-            if v0 < v1 {
-                return Some((v0, v1));
-            }
+    /// The scanlines `v0` and `v0 + 1`, where they lie in the band `img` holds.
+    fn lines(img: &'a Intermediate<'_>, v0: i64, shift: i64) -> Self {
+        let (lo, hi) = (img.row0 as i64, (img.row0 + img.rows) as i64);
+        let at = |v: i64| (v >= lo && v < hi).then(|| img.opaque_line((v - lo) as usize));
+        Needed {
+            lines: [at(v0), at(v0 + 1)],
+            width: img.width,
+            shift,
         }
+    }
+
+    /// Bit `t` set if voxel `x + t` is read by an open pixel.
+    #[inline(always)]
+    fn voxels(&self, x: usize) -> u64 {
+        let p = x as i64 + self.shift;
+        let mut m = 0;
+        for l in self.lines.into_iter().flatten() {
+            m |= opaque::open_bits(l, self.width, p) | opaque::open_bits(l, self.width, p + 1);
+        }
+        m
     }
 }
 
@@ -483,24 +434,6 @@ fn shade_run(
             }
         }
     }
-}
-
-/// Follows opaque-pixel links from `u` to the first pixel at or after it that is not
-/// opaque (or `links.len()`), compressing the path so later walks take one step.
-#[inline]
-pub(crate) fn skip_opaque(links: &mut [u16], u: usize) -> usize {
-    let mut t = u;
-    while t < links.len() && links[t] != 0 {
-        t += links[t] as usize;
-    }
-    let target = t.min(links.len());
-    let mut p = u;
-    while p < target {
-        let next = p + links[p] as usize;
-        links[p] = (target - p).min(u16::MAX as usize) as u16;
-        p = next;
-    }
-    target
 }
 
 /// Merges two sorted span streams into sorted, disjoint pixel spans after translating by
@@ -638,27 +571,22 @@ pub(crate) fn composite_slice_in(
     // Row j is read by scanlines j + n_v (as the bottom row) and j + n_v + 1 (top).
     // In MIP no pixel becomes opaque, so every voxel is needed.
     let skip_opaque_voxels = tables.mode == Mode::Composite;
-    let band = (band_lo, band_hi);
     {
-        let v0 = jt_lo + ov.n as i64;
-        let mut need = Needed::lines(img.links, v0, band, width, ou.n as i64);
-        let need = skip_opaque_voxels.then_some(&mut need);
+        let need = Needed::lines(img, jt_lo + ov.n as i64, ou.n as i64);
+        let need = skip_opaque_voxels.then_some(&need);
         top.fill(first.0, first.1, tables, scale, jt_lo, shadow, need);
     }
     for jt in jt_lo..=jt_hi {
         let next = row_of(jt + 1);
         touch(row_of(jt + 3).1);
         {
-            let v0 = jt + 1 + ov.n as i64;
-            let mut need = Needed::lines(img.links, v0, band, width, ou.n as i64);
-            let need = skip_opaque_voxels.then_some(&mut need);
+            let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
+            let need = skip_opaque_voxels.then_some(&need);
             bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, need);
         }
         let v = jt + ov.n as i64 + 1;
         if v >= band_lo && v < band_hi {
-            let line = (v as usize - img.row0) * width;
-            let pixels = &mut img.pixels[line..line + width];
-            let links = &mut img.links[line..line + width];
+            let (pixels, opaque) = img.scanline_mut(v as usize - img.row0);
             // Pixel u reads buffer entries u − n and u − n + 1: visit the pixels that
             // reach the non-zero extent of either row (zero taps leave a pixel as it is).
             let (lo, hi) = match (top.extent(), bot.extent()) {
@@ -676,7 +604,7 @@ pub(crate) fn composite_slice_in(
                     n: ou.n,
                     w,
                 };
-                composite_span(pixels, links, &taps, ua..ub, tables);
+                composite_span(pixels, opaque, &taps, ua..ub, tables);
             }
         }
         core::mem::swap(&mut top, &mut bot);
@@ -739,9 +667,7 @@ fn composite_slice_supersampled(
             held = jt;
         }
         let (top_runs, bot_runs) = (row_of(jt).0, row_of(jt + 1).0);
-        let line = (v - img.row0) * width;
-        let pixels = &mut img.pixels[line..line + width];
-        let links = &mut img.links[line..line + width];
+        let (pixels, opaque) = img.scanline_mut(v - img.row0);
         let spans = MergedSpans {
             a: Spans::new(top_runs).peekable(),
             b: Spans::new(bot_runs).peekable(),
@@ -753,31 +679,23 @@ fn composite_slice_supersampled(
             let hi = ((b as i64 - 1) * one + tu) * ss;
             let ua = (lo.div_euclid(one) + 1).clamp(0, width as i64) as usize;
             let ub = (hi.div_euclid(one) + 1).clamp(0, width as i64) as usize;
-            let mut u = ua;
+            let mut u = opaque::next_open(opaque, width, ua, ub);
             while u < ub {
-                if links[u] != 0 {
-                    u = skip_opaque(links, u);
-                    continue;
+                let e = opaque::open_run_end(opaque, width, u, ub);
+                for (u, px) in pixels.iter_mut().enumerate().take(e).skip(u) {
+                    let pu = u as i64 * one / ss - tu;
+                    let il = pu.div_euclid(one);
+                    let fru = pu.rem_euclid(one) as u32;
+                    if il < -1 || il >= ni as i64 {
+                        continue;
+                    }
+                    let bl = (il + 1) as usize;
+                    let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
+                    if composite_pixel(px, top.buf, bot.buf, bl, w, tables) {
+                        opaque::mark(opaque, u);
+                    }
                 }
-                let pu = u as i64 * one / ss - tu;
-                let il = pu.div_euclid(one);
-                let fru = pu.rem_euclid(one) as u32;
-                if il < -1 || il >= ni as i64 {
-                    u += 1;
-                    continue;
-                }
-                let bl = (il + 1) as usize;
-                let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
-                composite_pixel(
-                    &mut pixels[u],
-                    &mut links[u],
-                    top.buf,
-                    bot.buf,
-                    bl,
-                    w,
-                    tables,
-                );
-                u += 1;
+                u = opaque::next_open(opaque, width, e, ub);
             }
         }
     }
@@ -786,17 +704,17 @@ fn composite_slice_supersampled(
     Ok(())
 }
 
-/// Resamples and composites one pixel from voxel buffer index `bl` (left) and `bl + 1`.
+/// Resamples and composites one pixel from voxel buffer index `bl` (left) and `bl + 1`;
+/// true if the pixel became opaque (reached the early-ray-termination opacity).
 #[inline(always)]
 fn composite_pixel(
     p: &mut Rgba,
-    link: &mut u16,
     top: &[Rgba],
     bot: &[Rgba],
     bl: usize,
     w: [u32; 4],
     t: &SliceTables<'_>,
-) {
+) -> bool {
     let (tl, tr, bl_, br) = (top[bl], top[bl + 1], bot[bl], bot[bl + 1]);
     let mut s = [0u32; 4];
     for c in 0..4 {
@@ -814,15 +732,15 @@ fn composite_pixel(
                 for c in 0..4 {
                     p[c] = (p[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16;
                 }
-                if p[3] as u32 >= t.ert {
-                    *link = 1;
-                }
+                return p[3] as u32 >= t.ert;
             }
+            false
         }
         Mode::Mip => {
             if s[0] > p[0] as u32 {
                 *p = [s[0] as u16; 4];
             }
+            false
         }
     }
 }
@@ -840,49 +758,39 @@ struct Taps<'r> {
 #[inline]
 fn composite_span(
     pixels: &mut [Rgba],
-    links: &mut [u16],
+    opaque: &mut [u16],
     taps: &Taps<'_>,
     us: core::ops::Range<usize>,
     t: &SliceTables<'_>,
 ) {
     if t.mode == Mode::Composite {
-        return over_span(pixels, links, taps, us, t.ert);
+        return over_span(pixels, opaque, taps, us, t.ert);
     }
+    // MIP: no pixel ever becomes opaque.
     for u in us {
         // Buffer index of the left voxel: (u − n − 1) + 1.
         let bl = (u as i64 - taps.n as i64) as usize;
-        composite_pixel(
-            &mut pixels[u],
-            &mut links[u],
-            taps.top,
-            taps.bot,
-            bl,
-            taps.w,
-            t,
-        );
+        composite_pixel(&mut pixels[u], taps.top, taps.bot, bl, taps.w, t);
     }
 }
 
 /// [`composite_span`] for [`Mode::Composite`]: each run of pixels that are not opaque
 /// is composited by [`over_run`], a loop without branches that the compiler vectorises,
-/// and the pixels that reached the early-ray-termination opacity are linked afterwards.
-/// Bit-identical to [`composite_pixel`], which the tests check.
+/// and the pixels that reached the early-ray-termination opacity are marked opaque
+/// afterwards. Bit-identical to [`composite_pixel`], which the tests check.
 #[inline]
 fn over_span(
     pixels: &mut [Rgba],
-    links: &mut [u16],
+    opaque: &mut [u16],
     taps: &Taps<'_>,
     us: core::ops::Range<usize>,
     ert: u32,
 ) {
-    let mut u = us.start;
-    while u < us.end {
-        if links[u] != 0 {
-            u = skip_opaque(links, u);
-            continue;
-        }
-        let run = links[u..us.end].iter().position(|&l| l != 0);
-        let e = run.map_or(us.end, |r| u + r);
+    let width = pixels.len();
+    let end = us.end.min(width);
+    let mut u = opaque::next_open(opaque, width, us.start, end);
+    while u < end {
+        let e = opaque::open_run_end(opaque, width, u, end);
         // Pixels u..e read buffer entries u − n ..= e − n of both rows.
         let bl = (u as i64 - taps.n as i64) as usize;
         let m = e - u;
@@ -893,14 +801,14 @@ fn over_span(
             &taps.bot[bl..bl + m + 1],
             taps.w,
         );
-        // A pixel still at zero opacity was never composited, so it is not linked even
+        // A pixel still at zero opacity was never composited, so it is not marked even
         // when the threshold is zero (as in the per-pixel kernel).
-        for (l, p) in links[u..e].iter_mut().zip(px.iter()) {
+        for (i, p) in px.iter().enumerate() {
             if p[3] as u32 >= ert.max(1) {
-                *l = 1;
+                opaque::mark(opaque, u + i);
             }
         }
-        u = e;
+        u = opaque::next_open(opaque, width, e, end);
     }
 }
 
@@ -954,6 +862,129 @@ mod tests {
         assert_eq!(&v[..], &[(1, 5), (7, 10)]);
     }
 
+    /// A xorshift stream for the kernel tests.
+    fn rng(mut seed: u64) -> impl FnMut(u32) -> u32 {
+        move |m: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            ((seed >> 20) % (m as u64 + 1)) as u32
+        }
+    }
+
+    #[test]
+    fn lazy_fill_shades_every_voxel_an_open_pixel_reads() {
+        // Random scanlines (transparent and visible runs, splits at 255 included) shaded
+        // eagerly and lazily against random opaque bitmaps of the two reading scanlines,
+        // one or both of which may lie outside the band. Lazily, every voxel that an open
+        // pixel reads must come out exactly as eagerly, and the others must stay zero.
+        const NI: usize = 300;
+        const W: usize = 340;
+        let mut next = rng(0x2545_f491_4f6c_dd1d);
+        let color: ColorTable = core::array::from_fn(|i| [i as u16 * 64, 7, 9]);
+        let shade = ShadeTable::UNSHADED;
+        let opacity: [u16; 256] = core::array::from_fn(|i| (i * 128) as u16);
+        let t = SliceTables {
+            opacity: &opacity,
+            color: &color,
+            shade: &shade,
+            mode: Mode::Composite,
+            ert: ONE,
+            depth: None,
+            shade0: None,
+            ray_gain: None,
+        };
+        for round in 0..300 {
+            // Runs: alternate transparent / visible lengths until the scanline is full.
+            let mut runs: heapless::Vec<u8, 700> = heapless::Vec::new();
+            let mut voxels: heapless::Vec<Voxel, NI> = heapless::Vec::new();
+            let (mut i, mut visible) = (0usize, false);
+            while i < NI {
+                let long = next(9) == 0;
+                let len = (if long { next(300) } else { next(12) } as usize).min(NI - i);
+                let mut left = len;
+                loop {
+                    let piece = left.min(255);
+                    runs.push(piece as u8).unwrap();
+                    left -= piece;
+                    if left == 0 {
+                        break;
+                    }
+                    runs.push(0).unwrap();
+                }
+                if visible {
+                    for _ in 0..len {
+                        let v = Voxel {
+                            opacity: 1 + next(254) as u8,
+                            scalar: next(255) as u8,
+                            normal: 0,
+                        };
+                        voxels.push(v).unwrap();
+                    }
+                }
+                i += len;
+                visible = !visible;
+            }
+            if runs.len() % 2 == 1 {
+                runs.push(0).unwrap();
+            }
+            // Two scanlines of opaque bits: dense, sparse, or long opaque stretches.
+            let mut pixels = [[0u16; 4]; 2 * W];
+            let mut links = [0u16; 2 * W];
+            let mut img = Intermediate::band(W, 10, 4, 2, &mut pixels, &mut links).unwrap();
+            let density = next(4);
+            for r in 0..2 {
+                let (_, line) = img.scanline_mut(r);
+                let mut u = 0;
+                while u < W {
+                    let len = 1 + next(if density == 0 { 90 } else { 6 }) as usize;
+                    let opaque_run = next(3) < density.max(1);
+                    for p in u..(u + len).min(W) {
+                        if opaque_run {
+                            opaque::mark(line, p);
+                        }
+                    }
+                    u += len;
+                }
+            }
+            let shift = next(45) as i64 - 5;
+            // v0 = 3: only the second line is in the band; 4: both; 5: only the first.
+            let v0 = 3 + (round % 3) as i64;
+            let need = Needed::lines(&img, v0, shift);
+            let mut eager_buf = [[0u16; 4]; NI + 2];
+            let mut lazy_buf = [[1u16; 4]; NI + 2];
+            let mut eager = Row::new(&mut eager_buf, false);
+            eager.fill(&runs, &voxels, &t, ONE, 0, None, None);
+            let mut lazy = Row::new(&mut lazy_buf, false);
+            lazy.fill(&runs, &voxels, &t, ONE, 0, None, Some(&need));
+            let open = |v: i64, u: i64| -> bool {
+                (4..6).contains(&v)
+                    && (0..W as i64).contains(&u)
+                    && !opaque::is_opaque(img.opaque_line((v - 4) as usize), u as usize)
+            };
+            for i in 0..NI as i64 {
+                let read = [v0, v0 + 1]
+                    .iter()
+                    .any(|&v| open(v, i + shift) || open(v, i + shift + 1));
+                let (e, l) = (eager.buf[i as usize + 1], lazy.buf[i as usize + 1]);
+                if read {
+                    assert_eq!(
+                        l, e,
+                        "round {round}: voxel {i} is read but shaded differently"
+                    );
+                } else {
+                    assert_eq!(l, [0; 4], "round {round}: voxel {i} is not read");
+                }
+            }
+            // The extent covers every non-zero entry.
+            let (lo, hi) = lazy.extent().unwrap_or((0, 0));
+            assert!(lazy.buf[..lo]
+                .iter()
+                .chain(&lazy.buf[hi..])
+                .all(|p| *p == [0; 4]));
+        }
+    }
+
     #[test]
     fn over_span_matches_the_per_pixel_kernel() {
         // Random premultiplied rows (channels up to alpha, alpha up to ONE, edge values
@@ -996,7 +1027,14 @@ mod tests {
                 ray_gain: None,
             };
             let (mut fast, mut slow) = (start, start);
-            let (mut lf, mut ls) = ([0u16; 40], [0u16; 40]);
+            // Some pixels already opaque: both kernels must leave them alone.
+            let mut lf = [0u16; opaque::words(40)];
+            for u in 0..40 {
+                if next(7) == 0 {
+                    opaque::mark(&mut lf, u);
+                }
+            }
+            let mut ls = lf;
             let taps = Taps {
                 top: &top,
                 bot: &bot,
@@ -1004,22 +1042,13 @@ mod tests {
                 w,
             };
             over_span(&mut fast, &mut lf, &taps, 3..36, ert);
-            for u in 3..36 {
-                composite_pixel(&mut slow[u], &mut ls[u], &top, &bot, u - 3, w, &t);
+            for (u, p) in slow.iter_mut().enumerate().take(36).skip(3) {
+                if !opaque::is_opaque(&ls, u) && composite_pixel(p, &top, &bot, u - 3, w, &t) {
+                    opaque::mark(&mut ls, u);
+                }
             }
             assert_eq!(fast, slow);
             assert_eq!(lf, ls);
         }
-    }
-
-    #[test]
-    fn skip_opaque_follows_and_compresses_links() {
-        let mut links = [0u16, 1, 1, 1, 0, 1, 0];
-        assert_eq!(skip_opaque(&mut links, 1), 4);
-        assert_eq!(links[1], 3);
-        assert_eq!(links[2], 2);
-        assert_eq!(skip_opaque(&mut links, 5), 6);
-        let mut end = [1u16, 1];
-        assert_eq!(skip_opaque(&mut end, 0), 2);
     }
 }

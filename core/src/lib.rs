@@ -33,6 +33,7 @@ pub mod fixed;
 pub mod io;
 pub mod lod;
 pub mod normal;
+pub mod opaque;
 pub mod perspective;
 pub mod postclass;
 pub mod render;

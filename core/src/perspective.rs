@@ -20,9 +20,10 @@
 //! [`GAIN_LEVELS`] step lengths; on uniform material this equals correcting every voxel
 //! for the pixel's own step.
 
-use crate::composite::{skip_opaque, Intermediate, Mode, Rgba, Row, SliceTables, Spans};
+use crate::composite::{Intermediate, Mode, Rgba, Row, SliceTables, Spans};
 use crate::error::{need, Error};
 use crate::fixed::ONE;
+use crate::opaque;
 use crate::rle::RleSlice;
 use crate::view::{Factorization, Perspective, MAX_DECIMATION};
 
@@ -272,10 +273,9 @@ pub(crate) fn composite_slice(
                     let va = (va - 1).clamp(band.start, band.end);
                     let vb = (vb + 1).clamp(band.start, band.end);
                     Some(Readers {
-                        links: img.links(),
+                        img: &*img,
                         first: (va - band.start) as usize,
                         count: (vb - va) as usize,
-                        width,
                     })
                 } else {
                     None
@@ -292,13 +292,12 @@ pub(crate) fn composite_slice(
         if lo >= hi {
             continue;
         }
-        let line = (v - img.first_row()) * width;
-        let (pixels, links) = img.scanline_mut(line, width);
+        let (pixels, opaque_line) = img.scanline_mut(v - img.first_row());
         let rv = gain.map_or(0, |g| g.row_term(v));
         let mut u = lo;
         while u < hi {
-            if links[u] != 0 {
-                u = skip_opaque(links, u);
+            if opaque::is_opaque(opaque_line, u) {
+                u = opaque::next_open(opaque_line, width, u, hi);
                 continue;
             }
             let mut s = [0u32; 4];
@@ -321,7 +320,7 @@ pub(crate) fn composite_slice(
                             p[c] = (p[c] as u32 + ((s[c] * tr + (1 << 14)) >> 15)).min(ONE) as u16;
                         }
                         if p[3] as u32 >= tables.ert {
-                            links[u] = 1;
+                            opaque::mark(opaque_line, u);
                         }
                     }
                 }
@@ -344,24 +343,19 @@ pub(crate) fn composite_slice(
 }
 
 /// The scanlines of a band that read one voxel row: `count` rows from band row
-/// `first`, with the band's opaque-pixel links.
-struct Readers<'a> {
-    links: &'a [u16],
+/// `first` of `img`.
+struct Readers<'a, 'b> {
+    img: &'a Intermediate<'b>,
     first: usize,
     count: usize,
-    width: usize,
 }
 
-impl Readers<'_> {
+impl Readers<'_, '_> {
     /// True if pixel `u` is opaque in every reading scanline.
     #[inline]
     fn all_opaque(&self, u: usize) -> bool {
         self.count > 0
-            && (0..self.count).all(|r| {
-                self.links
-                    .get((self.first + r) * self.width + u)
-                    .is_some_and(|&l| l != 0)
-            })
+            && (0..self.count).all(|r| opaque::is_opaque(self.img.opaque_line(self.first + r), u))
     }
 }
 
@@ -375,7 +369,7 @@ fn filter_row(
     xs: &AxisMap,
     ni: usize,
     wx: &mut [u32; MAX_TAPS],
-    readers: Option<&Readers<'_>>,
+    readers: Option<&Readers<'_, '_>>,
 ) -> Slot {
     let width = out.len() as i64;
     let mut slot = Slot {

@@ -113,7 +113,8 @@ pub struct PostSettings<'a> {
 pub struct PostWorkspace<'a> {
     /// Intermediate pixels ([`crate::view::max_intermediate_pixels`]).
     pub pixels: &'a mut [Rgba],
-    /// Opaque-pixel links, as many.
+    /// The opaque-pixel bitmap ([`crate::opaque::words`]`(width)` per scanline; as many
+    /// as `pixels` is always enough).
     pub links: &'a mut [u16],
     /// One flag per brick ([`brick_count`]).
     pub visible: &'a mut [bool],
@@ -231,9 +232,8 @@ fn sample(vol: &Dense<'_>, shade: &ShadeTable, i: i64, j: i64, k: usize, w: &[u3
         }
         if let Some(v) = vol.at(ti, tj, k) {
             s += wt * v.scalar as u32;
-            let idx = (v.normal as usize).min(crate::normal::CODES - 1);
-            let dd = shade.diffuse[idx];
-            let ss = shade.specular[idx];
+            let e = shade.entry(v.normal);
+            let (dd, ss) = (e.diffuse, e.specular);
             for c in 0..3 {
                 d[c] += wt * dd[c] as u32;
                 sp[c] += wt * ss[c] as u32;
@@ -358,7 +358,6 @@ pub fn render(
             let vpos = (v as i64 - fv.n as i64) * ONE as i64 - fv.f as i64;
             let row_in = vpos >= -(ONE as i64 / 2) && vpos <= (2 * nj - 1) * (ONE as i64 / 2);
             let bj = (((jt + 1).max(0) as usize) / BRICK).min(nb[1] - 1);
-            let line = v * iw;
             let brow = bk * bstride[2] + bj * bstride[1];
             for bi in 0..nb[0] {
                 if !ws.visible[brow + bi * bstride[0]] {
@@ -374,11 +373,11 @@ pub fn render(
                 };
                 let u0 = (r0 as i64 + fu.n as i64).clamp(0, iw as i64) as usize;
                 let u1 = (r1 as i64 + fu.n as i64).clamp(0, iw as i64) as usize;
-                let (pixels, links) = img.scanline_mut(line, iw);
+                let (pixels, opaque) = img.scanline_mut(v);
                 let mut u = u0;
                 while u < u1 {
-                    if links[u] != 0 {
-                        u = crate::composite::skip_opaque(links, u);
+                    if crate::opaque::is_opaque(opaque, u) {
+                        u = crate::opaque::next_open(opaque, iw, u, u1);
                         continue;
                     }
                     let il = u as i64 - fu.n as i64 - 1;
@@ -440,7 +439,7 @@ pub fn render(
                         }
                         px[3] = (px[3] as u32 + fixed::mul(a, tr)).min(ONE) as u16;
                         if px[3] as u32 >= ert {
-                            links[u] = 1;
+                            crate::opaque::mark(opaque, u);
                         }
                     }
                     u += 1;

@@ -38,7 +38,8 @@ pub struct Settings<'a> {
 pub struct Workspace<'a> {
     /// Intermediate image pixels: at least [`view::max_intermediate_pixels`].
     pub pixels: &'a mut [Rgba],
-    /// Opaque-pixel links, as many as `pixels`.
+    /// The opaque-pixel bitmap: [`crate::opaque::words`]`(width)` entries per
+    /// intermediate scanline (as many as `pixels` is always enough).
     pub links: &'a mut [u16],
     /// Voxel row buffers: [`composite::row_buffer_len`] of the largest volume side.
     pub rows: &'a mut [Rgba],
@@ -63,7 +64,8 @@ pub struct ShadowWorkspace<'a> {
 /// Buffers sized at compile time: `PIX` intermediate pixels, `ROW` row-buffer entries,
 /// `W` image width.
 ///
-/// Bytes: `10·PIX + 8·ROW + 4·W + 98 316` (the shade table). Use
+/// Bytes: `10·PIX + 8·ROW + 4·W + 98 316` (the shade table; the `u16` per pixel holds
+/// the opaque-pixel bitmap, which uses a sixteenth of it). Use
 /// [`view::max_intermediate_pixels`] and [`composite::row_buffer_len`] to choose `PIX`
 /// and `ROW` for a maximum volume.
 pub struct StaticWorkspace<const PIX: usize, const ROW: usize, const W: usize> {

@@ -98,23 +98,41 @@ fn norm(v: [f64; 3]) -> f64 {
     libm::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 }
 
-/// Diffuse and specular factors per normal code, Q15 RGB. The diffuse factor can exceed
-/// one (bright lights), so it is stored as `u32`-ranged `u16` with a cap of 2.0 (Q15
-/// 65535); the product with a colour is clamped at composite time.
+/// The shading of one normal code, Q15 RGB. The diffuse factor can exceed one (bright
+/// lights), so it is stored with a cap of 2.0 (Q15 65535); the product with a colour is
+/// clamped at composite time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShadeEntry {
+    /// `D`: ambient plus diffuse.
+    pub diffuse: [u16; 3],
+    /// `S`: specular.
+    pub specular: [u16; 3],
+}
+
+/// Diffuse and specular factors per normal code. Both halves of a code sit side by side
+/// (12 bytes), so shading a voxel reads one place of the 96 KiB table instead of two:
+/// the table outgrows a first-level cache, and a lazily shaded voxel's normal is close
+/// to random, so each read is usually a miss.
 #[derive(Clone, Debug)]
 pub struct ShadeTable {
-    /// `D` per code.
-    pub diffuse: [[u16; 3]; normal::CODES],
-    /// `S` per code.
-    pub specular: [[u16; 3]; normal::CODES],
+    /// The entry per code.
+    pub entries: [ShadeEntry; normal::CODES],
 }
 
 impl ShadeTable {
     /// A table that leaves colours unchanged (`D = 1`, `S = 0`): shading off.
     pub const UNSHADED: ShadeTable = ShadeTable {
-        diffuse: [[ONE as u16; 3]; normal::CODES],
-        specular: [[0; 3]; normal::CODES],
+        entries: [ShadeEntry {
+            diffuse: [ONE as u16; 3],
+            specular: [0; 3],
+        }; normal::CODES],
     };
+
+    /// The entry for `code` (codes past the table read its last entry).
+    #[inline(always)]
+    pub fn entry(&self, code: u16) -> ShadeEntry {
+        self.entries[(code as usize).min(normal::CODES - 1)]
+    }
 
     /// Fills the table for `lighting` with object-to-camera rotation `rot` (row-major,
     /// applied to object-space normals measured in physical units).
@@ -207,8 +225,10 @@ impl ShadeTable {
                     }
                 }
             }
-            self.diffuse[code] = d.map(cap);
-            self.specular[code] = sp.map(|x| x.min(ONE) as u16);
+            self.entries[code] = ShadeEntry {
+                diffuse: d.map(cap),
+                specular: sp.map(|x| x.min(ONE) as u16),
+            };
         }
         Ok(())
     }
@@ -216,18 +236,20 @@ impl ShadeTable {
     /// `c·D + S` per channel for `code`, unclamped (up to about 3·ONE).
     #[inline(always)]
     pub fn shade_raw(&self, code: u16, c: [u16; 3]) -> [u32; 3] {
-        let i = (code as usize).min(normal::CODES - 1);
-        let d = self.diffuse[i];
-        let s = self.specular[i];
+        let ShadeEntry {
+            diffuse: d,
+            specular: s,
+        } = self.entry(code);
         [0, 1, 2].map(|ch| fixed::mul(c[ch] as u32, d[ch] as u32) + s[ch] as u32)
     }
 
     /// Shades a Q15 colour with the entry for `code`: `min(1, c·D + S)` per channel.
     #[inline(always)]
     pub fn shade(&self, code: u16, c: [u16; 3]) -> [u32; 3] {
-        let i = (code as usize).min(normal::CODES - 1);
-        let d = self.diffuse[i];
-        let s = self.specular[i];
+        let ShadeEntry {
+            diffuse: d,
+            specular: s,
+        } = self.entry(code);
         let mut out = [0u32; 3];
         for ch in 0..3 {
             out[ch] = (fixed::mul(c[ch] as u32, d[ch] as u32) + s[ch] as u32).min(ONE);

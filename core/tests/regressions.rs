@@ -49,7 +49,8 @@ fn facing_entry(ka: f64, kd: f64, ks: f64) -> ([u16; 3], [u16; 3]) {
     let mut t = Box::new(ShadeTable::UNSHADED);
     t.fill(&l, &IDENTITY).unwrap();
     let code = normal::encode(0, 0, 1 << 20) as usize;
-    (t.diffuse[code], t.specular[code])
+    let e = t.entries[code];
+    (e.diffuse, e.specular)
 }
 
 /// Found by the `swv_render` fuzz target within a minute: a `.swv` whose look block has
