@@ -360,15 +360,20 @@ impl<'a> Needed<'a> {
         }
     }
 
-    /// Bit `t` set if voxel `x + t` is read by an open pixel.
+    /// Bit `t` set if voxel `x + t` is read by an open pixel: it is not when both of its
+    /// pixels are closed in both scanlines.
     #[inline(always)]
     fn voxels(&self, x: usize) -> u64 {
         let p = x as i64 + self.shift;
-        let mut m = 0;
+        let (mut c, mut next) = (u64::MAX, true);
         for l in self.lines.into_iter().flatten() {
-            m |= opaque::open_bits(l, self.width, p) | opaque::open_bits(l, self.width, p + 1);
+            let (w, n) = opaque::closed65(l, self.width, p);
+            c &= w;
+            next &= n;
         }
-        m
+        // Bit t of `right`: pixel p + t + 1.
+        let right = (c >> 1) | (next as u64) << 63;
+        !(c & right)
     }
 }
 

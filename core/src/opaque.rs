@@ -33,38 +33,51 @@ pub(crate) const fn ones(n: usize) -> u64 {
 }
 
 /// The opaque bits of pixels `start..start + 64` (`start >= 0`) of a scanline stored in
-/// `line`, bit `t` for pixel `start + t`; words past the end read as zero.
+/// `line`, bit `t` for pixel `start + t`, and the bit of pixel `start + 64`; words past
+/// the end read as zero.
 #[inline(always)]
-fn opaque_window(line: &[u16], start: usize) -> u64 {
+fn opaque_window(line: &[u16], start: usize) -> (u64, bool) {
     let w = start / BITS;
     let o = start % BITS;
     let word = |k: usize| line.get(w + k).map_or(0, |&x| x as u64);
     let lo = word(0) | word(1) << 16 | word(2) << 32 | word(3) << 48;
-    if o == 0 {
+    let top = word(4);
+    let win = if o == 0 {
         lo
     } else {
-        (lo >> o) | (word(4) << (64 - o))
+        (lo >> o) | (top << (64 - o))
+    };
+    (win, top >> o & 1 != 0)
+}
+
+/// Pixels `start..=start + 64` of a `width`-pixel scanline that no sample may change:
+/// bit `t` of the word for pixel `start + t` (`t < 64`), and the flag for pixel
+/// `start + 64`. A pixel is closed if it is opaque or lies outside `0..width`.
+#[inline(always)]
+pub(crate) fn closed65(line: &[u16], width: usize, start: i64) -> (u64, bool) {
+    // Pixels start + t with t in lo..hi lie in the scanline.
+    let lo = (-start).clamp(0, 65) as usize;
+    let hi = (width as i64 - start).clamp(0, 65) as usize;
+    if lo >= hi {
+        return (u64::MAX, true);
     }
+    let (win, next) = if start >= 0 {
+        opaque_window(line, start as usize)
+    } else {
+        // Here lo is in 1..=64: the window from pixel 0 moves up by lo bits.
+        let (w0, _) = opaque_window(line, 0);
+        let win = if lo < 64 { w0 << lo } else { 0 };
+        (win, w0 >> (64 - lo) & 1 != 0)
+    };
+    let valid = ones(hi) & !ones(lo);
+    (win | !valid, next || !(lo <= 64 && hi > 64))
 }
 
 /// Bit `t` set if pixel `start + t` lies in `0..width` and is open (not opaque), for `t`
 /// in `0..64`.
 #[inline(always)]
 pub(crate) fn open_bits(line: &[u16], width: usize, start: i64) -> u64 {
-    let lo = (-start).clamp(0, 64) as usize;
-    let hi = (width as i64 - start).clamp(0, 64) as usize;
-    if lo >= hi {
-        return 0;
-    }
-    let valid = ones(hi) & !ones(lo);
-    // For start < 0 the window from pixel 0 moves up by -start bits (lo > 0 implies
-    // start in -63..=-1 here).
-    let opaque = if start >= 0 {
-        opaque_window(line, start as usize)
-    } else {
-        opaque_window(line, 0) << lo
-    };
-    !opaque & valid
+    !closed65(line, width, start).0
 }
 
 /// True if pixel `u` is opaque (pixels past the stored words count as open).
@@ -138,6 +151,12 @@ mod tests {
         }
         for u in 0..width {
             assert_eq!(is_opaque(&l, u), opq.contains(&u));
+        }
+        for start in -80i64..200 {
+            let (_, next) = closed65(&l, width, start);
+            let u = start + 64;
+            let open = u >= 0 && (u as usize) < width && !opq.contains(&(u as usize));
+            assert_eq!(next, !open, "start {start}: pixel {u}");
         }
     }
 
