@@ -360,6 +360,21 @@ impl<'a> Needed<'a> {
         }
     }
 
+    /// True if no open pixel reads any visible voxel of the `ni`-voxel scanline `runs`.
+    fn hides(&self, runs: &[u8], ni: usize) -> bool {
+        let Some((first, last)) = visible_extent(runs, ni) else {
+            return true;
+        };
+        let mut x = first;
+        while x < last {
+            if self.voxels(x) & opaque::ones(last - x) != 0 {
+                return false;
+            }
+            x += 64;
+        }
+        true
+    }
+
     /// Bit `t` set if voxel `x + t` is read by an open pixel: it is not when both of its
     /// pixels are closed in both scanlines.
     #[inline(always)]
@@ -375,6 +390,34 @@ impl<'a> Needed<'a> {
         let right = (c >> 1) | (next as u64) << 63;
         !(c & right)
     }
+}
+
+/// The voxels `[first, last)` from a scanline's first to its last visible voxel (`ni`
+/// wide), from the runs at its two ends; `None` if it has none.
+fn visible_extent(runs: &[u8], ni: usize) -> Option<(usize, usize)> {
+    let mut first = 0;
+    let mut seen = false;
+    for pair in runs.chunks_exact(2) {
+        first += pair[0] as usize;
+        if pair[1] != 0 {
+            seen = true;
+            break;
+        }
+    }
+    if !seen {
+        return None;
+    }
+    // Trailing transparency: the transparent runs of the pairs at the end whose visible
+    // run is empty (a long run is split into such pairs), then nothing more.
+    let mut trailing = 0;
+    for pair in runs.rchunks_exact(2) {
+        if pair[1] != 0 {
+            break;
+        }
+        trailing += pair[0] as usize;
+    }
+    let last = ni.saturating_sub(trailing);
+    (first < last).then_some((first, last))
 }
 
 /// Shades voxels `src` (the first at index `first` of row `j`) into `out`.
@@ -581,10 +624,22 @@ pub(crate) fn composite_slice_in(
         let need = skip_opaque_voxels.then_some(&need);
         top.fill(first.0, first.1, tables, scale, jt_lo, shadow, need);
     }
+    // Rows found hidden two rows ahead, by row index mod 4: a row whose every voxel
+    // only closed pixels read is neither streamed into the cache nor walked. Pixels only
+    // ever close, so a row hidden then is still hidden when its turn comes.
+    let mut hidden = [false; 4];
     for jt in jt_lo..=jt_hi {
         let next = row_of(jt + 1);
-        touch(row_of(jt + 3).1);
-        {
+        let ahead = row_of(jt + 3);
+        let hide = skip_opaque_voxels
+            && Needed::lines(img, jt + 3 + ov.n as i64, ou.n as i64).hides(ahead.0, ni);
+        hidden[(jt + 3).rem_euclid(4) as usize] = hide;
+        if !hide {
+            touch(ahead.1);
+        }
+        if hidden[(jt + 1).rem_euclid(4) as usize] {
+            bot.clear();
+        } else {
             let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
             let need = skip_opaque_voxels.then_some(&need);
             bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, need);
@@ -875,6 +930,44 @@ mod tests {
             seed ^= seed << 17;
             ((seed >> 20) % (m as u64 + 1)) as u32
         }
+    }
+
+    #[test]
+    fn visible_extent_spans_first_to_last_visible_voxel() {
+        // ni = 20 unless noted.
+        assert_eq!(visible_extent(&[20, 0], 20), None);
+        assert_eq!(visible_extent(&[3, 4, 13, 0], 20), Some((3, 7)));
+        assert_eq!(visible_extent(&[0, 2, 3, 15], 20), Some((0, 20)));
+        assert_eq!(visible_extent(&[0, 0, 5, 1, 14, 0], 20), Some((5, 6)));
+        // Long runs split at 255, transparent at both ends.
+        let runs = [255, 0, 45, 2, 3, 1, 255, 0, 94, 0];
+        assert_eq!(visible_extent(&runs, 655), Some((300, 306)));
+        let runs = [1, 255, 0, 255, 0, 9];
+        assert_eq!(visible_extent(&runs, 520), Some((1, 520)));
+    }
+
+    #[test]
+    fn a_row_is_hidden_exactly_when_no_open_pixel_reads_a_visible_voxel() {
+        // Row: voxels 10..14 and 90..93 visible (ni = 120), shift 7: voxel i feeds
+        // pixels i + 7 and i + 8 of scanlines 4 and 5 (both in the band).
+        let runs = [10u8, 4, 76, 3, 27, 0];
+        let mut pixels = [[0u16; 4]; 2 * 140];
+        let mut links = [0u16; 2 * 140];
+        let mut img = Intermediate::band(140, 10, 4, 2, &mut pixels, &mut links).unwrap();
+        let close = |img: &mut Intermediate<'_>, r: usize, us: core::ops::Range<usize>| {
+            let (_, line) = img.scanline_mut(r);
+            us.for_each(|u| opaque::mark(line, u));
+        };
+        close(&mut img, 0, 0..140);
+        close(&mut img, 1, 0..100);
+        // Pixel 100 of scanline 5 is open, read by voxel 92.
+        assert!(!Needed::lines(&img, 4, 7).hides(&runs, 120));
+        close(&mut img, 1, 100..101);
+        // Pixels 101.. are open but read only transparent voxels.
+        assert!(Needed::lines(&img, 4, 7).hides(&runs, 120));
+        // Scanline 3 lies outside the band: only scanline 4 reads, and it is closed.
+        assert!(Needed::lines(&img, 3, 7).hides(&runs, 120));
+        assert!(Needed::lines(&img, 3, 7).hides(&[120, 0], 120));
     }
 
     #[test]
