@@ -410,16 +410,50 @@ impl warp::PixelSink for StripSink<'_> {
     }
 }
 
-/// One unit of threaded work: band index, its pixels and its links.
-type BandJob<'a> = (usize, &'a mut [Rgba], &'a mut [u16]);
+/// The part of the intermediate image not yet handed to a thread: its first scanline,
+/// pixels and opaque-pixel bitmap.
+struct Unclaimed<'a> {
+    row0: usize,
+    pixels: &'a mut [Rgba],
+    opaque: &'a mut [u16],
+}
+
+impl<'a> Unclaimed<'a> {
+    /// Claims the next band of `ih` scanlines `iw` wide (bitmap `stride` words per
+    /// scanline): its first scanline, length, pixels and bitmap. Bands shrink as the
+    /// image runs out (guided self-scheduling): a share of what is left for each of
+    /// `threads`, at least [`Renderer::BAND_ROWS`]. Each band costs a duplicated voxel
+    /// row and a cold start per slice, so early bands are long; short late bands keep
+    /// the threads finishing together.
+    fn claim(
+        &mut self,
+        iw: usize,
+        ih: usize,
+        stride: usize,
+        threads: usize,
+    ) -> Option<(usize, usize, &'a mut [Rgba], &'a mut [u16])> {
+        let left = ih.saturating_sub(self.row0);
+        if left == 0 {
+            return None;
+        }
+        let rows = (left / (2 * threads)).max(Renderer::BAND_ROWS).min(left);
+        let (p, rest) = std::mem::take(&mut self.pixels).split_at_mut(rows * iw);
+        self.pixels = rest;
+        let (o, rest) = std::mem::take(&mut self.opaque).split_at_mut(rows * stride);
+        self.opaque = rest;
+        let row0 = self.row0;
+        self.row0 += rows;
+        Some((row0, rows, p, o))
+    }
+}
 
 /// Heap-allocated workspace sized for one volume, reused across frames, rendering with
 /// a configurable number of threads.
 ///
-/// With more than one thread the intermediate image is cut into bands of
-/// [`Renderer::BAND_ROWS`] scanlines that threads take from a shared queue as they finish
-/// (dynamic assignment keeps the load balanced when the object fills only part of the
-/// image); each thread composites every slice into its band. The output is bit-identical
+/// With more than one thread the intermediate image is cut into bands of scanlines that
+/// threads claim as they finish, long ones first and short ones last (dynamic
+/// assignment keeps the load balanced when the object fills only part of the image);
+/// each thread composites every slice into its band. The output is bit-identical
 /// to the single-threaded path because every intermediate pixel is computed by the same
 /// code from the same inputs.
 pub struct Renderer {
@@ -433,11 +467,14 @@ pub struct Renderer {
     shade0: Box<ShadeTable>,
     supersample: usize,
     fov: Option<f64>,
+    /// The other `threads - 1` workers, started once: waking a parked thread takes a few
+    /// microseconds, starting one about 40 (measured here), twice a frame.
+    pool: Option<rayon::ThreadPool>,
 }
 
 impl Renderer {
-    /// Scanlines per work unit in threaded rendering.
-    pub const BAND_ROWS: usize = 16;
+    /// Fewest scanlines per work unit in threaded rendering.
+    pub const BAND_ROWS: usize = 8;
 
     /// Allocates for any view of `grid` (buffers grow if a frame needs more), one thread.
     pub fn new(grid: &Grid) -> Self {
@@ -446,7 +483,17 @@ impl Renderer {
 
     /// As [`Renderer::new`], compositing with `threads` threads (at least 1).
     pub fn with_threads(grid: &Grid, threads: usize) -> Self {
-        let threads = threads.max(1);
+        let pool = (threads > 1)
+            .then(|| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads - 1)
+                    .thread_name(|i| format!("shearwarp-{}", i + 1))
+                    .build()
+                    .ok()
+            })
+            .flatten();
+        // Without a pool (it could not be started) the calling thread works alone.
+        let threads = if pool.is_some() { threads } else { 1 };
         let pix = view::max_intermediate_pixels(grid.dims);
         let m = grid.dims.iter().copied().max().unwrap_or(1);
         Renderer {
@@ -462,6 +509,7 @@ impl Renderer {
             shade0: Box::new(ShadeTable::UNSHADED),
             supersample: 1,
             fov: None,
+            pool,
         }
     }
 
@@ -560,42 +608,43 @@ impl Renderer {
                 r.resize(need_row, [0; 4]);
             }
         }
-        if frame.shadow.is_some() || self.rows.len() == 1 {
-            // One thread, or shadows (the shadow buffer is swept with the slices): the
-            // whole image is one band, composited on the calling thread.
-            let shadow = match &frame.shadow {
-                Some(sf) => {
-                    let sn = sf.size[0] * sf.size[1];
-                    if self.shadow_alpha.len() < sn {
-                        self.shadow_alpha.resize(sn, 0);
+        let pool = match &self.pool {
+            Some(p) if frame.shadow.is_none() && self.rows.len() > 1 => p,
+            _ => {
+                // One thread, or shadows (the shadow buffer is swept with the slices): the
+                // whole image is one band, composited on the calling thread.
+                let shadow = match &frame.shadow {
+                    Some(sf) => {
+                        let sn = sf.size[0] * sf.size[1];
+                        if self.shadow_alpha.len() < sn {
+                            self.shadow_alpha.resize(sn, 0);
+                        }
+                        Some((&mut self.shadow_alpha[..], &mut self.shadow_rows[..]))
                     }
-                    Some((&mut self.shadow_alpha[..], &mut self.shadow_rows[..]))
-                }
-                None => None,
-            };
-            let mut img = Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
-            let rows = &mut self.rows[0];
-            let done = render::composite_band_until(
-                source,
-                &frame,
-                &tables,
-                &mut img,
-                rows,
-                shadow,
-                &mut || keep_going(),
-            )?;
-            return Ok(done.then_some(frame));
-        }
-        let band = Self::BAND_ROWS * iw;
-        let queue: Mutex<Vec<BandJob<'_>>> = Mutex::new(
-            self.pixels[..n]
-                .chunks_mut(band)
-                .zip(self.links[..n].chunks_mut(band))
-                .enumerate()
-                .map(|(i, (p, l))| (i, p, l))
-                .rev()
-                .collect(),
-        );
+                    None => None,
+                };
+                let mut img =
+                    Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
+                let rows = &mut self.rows[0];
+                let done = render::composite_band_until(
+                    source,
+                    &frame,
+                    &tables,
+                    &mut img,
+                    rows,
+                    shadow,
+                    &mut || keep_going(),
+                )?;
+                return Ok(done.then_some(frame));
+            }
+        };
+        let stride = shearwarp_core::opaque::words(iw);
+        let threads = self.rows.len();
+        let queue = Mutex::new(Unclaimed {
+            row0: 0,
+            pixels: &mut self.pixels[..n],
+            opaque: &mut self.links[..stride * ih],
+        });
         let poisoned = || Error::Source {
             reason: "a compositing thread panicked",
         };
@@ -604,10 +653,13 @@ impl Renderer {
         // fewer to start per frame, and its caches are warm).
         let work = |rows: &mut Vec<Rgba>, mut src: S| -> Result<(), Error> {
             loop {
-                let job = queue.lock().map_err(|_| poisoned())?.pop();
-                let Some((i, p, l)) = job else { return Ok(()) };
-                let row0 = i * Self::BAND_ROWS;
-                let here = Self::BAND_ROWS.min(ih - row0);
+                let job = queue
+                    .lock()
+                    .map_err(|_| poisoned())?
+                    .claim(iw, ih, stride, threads);
+                let Some((row0, here, p, l)) = job else {
+                    return Ok(());
+                };
                 let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
                 let go = &mut || keep_going();
                 if !render::composite_band_until(
@@ -619,24 +671,28 @@ impl Renderer {
             }
         };
         let (first, others) = self.rows.split_at_mut(1);
-        std::thread::scope(|scope| -> Result<(), Error> {
-            let handles: Vec<_> = others
-                .iter_mut()
-                .map(|rows| {
-                    let src = source.clone();
-                    let work = &work;
-                    scope.spawn(move || work(rows, src))
-                })
-                .collect();
-            let mine = match first.first_mut() {
+        let failed: Mutex<Option<Error>> = Mutex::new(None);
+        let mine = pool.in_place_scope(|scope| {
+            for rows in others.iter_mut() {
+                let src = source.clone();
+                let (work, failed) = (&work, &failed);
+                scope.spawn(move |_| {
+                    if let Err(e) = work(rows, src) {
+                        if let Ok(mut f) = failed.lock() {
+                            f.get_or_insert(e);
+                        }
+                    }
+                });
+            }
+            match first.first_mut() {
                 Some(rows) => work(rows, source.clone()),
                 None => Ok(()),
-            };
-            for h in handles {
-                h.join().map_err(|_| poisoned())??;
             }
-            mine
-        })?;
+        });
+        mine?;
+        if let Some(e) = failed.into_inner().map_err(|_| poisoned())? {
+            return Err(e);
+        }
         Ok((!stopped.load(Ordering::Relaxed)).then_some(frame))
     }
 
@@ -652,7 +708,7 @@ impl Renderer {
         })?;
         let [w, h] = view.image;
         let mut frame = vec![[0u8; 4]; w * h];
-        if self.rows.len() == 1 {
+        let Some(pool) = self.pool.as_ref().filter(|_| self.rows.len() > 1) else {
             let mut row = vec![[0u8; 4]; w];
             let mut sink = FrameBuffer {
                 width: w,
@@ -660,7 +716,7 @@ impl Renderer {
             };
             warp::warp(pixels, view, &mut row, &mut sink)?;
             return Ok(frame);
-        }
+        };
         // Every row is computed on its own, so the result does not depend on the split.
         let strip = h.div_ceil(self.rows.len()).max(1);
         let strip_warp = |i: usize, chunk: &mut [[u8; 4]]| -> Result<(), Error> {
@@ -678,28 +734,36 @@ impl Renderer {
                 &mut sink,
             )
         };
-        std::thread::scope(|scope| -> Result<(), Error> {
+        let failed: Mutex<Option<Error>> = Mutex::new(None);
+        pool.in_place_scope(|scope| {
             let mut chunks = frame.chunks_mut(strip * w).enumerate();
             // The calling thread warps the first strip.
             let first = chunks.next();
-            let handles: Vec<_> = chunks
-                .map(|(i, chunk)| {
-                    let strip_warp = &strip_warp;
-                    scope.spawn(move || strip_warp(i, chunk))
-                })
-                .collect();
-            let mine = match first {
-                Some((i, chunk)) => strip_warp(i, chunk),
-                None => Ok(()),
-            };
-            for h in handles {
-                h.join().map_err(|_| Error::Source {
-                    reason: "a warp thread panicked",
-                })??;
+            for (i, chunk) in chunks {
+                let (strip_warp, failed) = (&strip_warp, &failed);
+                scope.spawn(move |_| {
+                    if let Err(e) = strip_warp(i, chunk) {
+                        if let Ok(mut f) = failed.lock() {
+                            f.get_or_insert(e);
+                        }
+                    }
+                });
             }
-            mine
-        })?;
-        Ok(frame)
+            if let Some((i, chunk)) = first {
+                if let Err(e) = strip_warp(i, chunk) {
+                    if let Ok(mut f) = failed.lock() {
+                        f.get_or_insert(e);
+                    }
+                }
+            }
+        });
+        match failed.into_inner() {
+            Ok(None) => Ok(frame),
+            Ok(Some(e)) => Err(e),
+            Err(_) => Err(Error::Source {
+                reason: "a warp thread panicked",
+            }),
+        }
     }
 }
 
