@@ -64,7 +64,7 @@ pub struct ShadowWorkspace<'a> {
 /// Buffers sized at compile time: `PIX` intermediate pixels, `ROW` row-buffer entries,
 /// `W` image width.
 ///
-/// Bytes: `10·PIX + 8·ROW + 4·W + 98 316` (the shade table; the `u16` per pixel holds
+/// Bytes: `10·PIX + 8·ROW + 4·W + 102 448` (the shade table; the `u16` per pixel holds
 /// the opaque-pixel bitmap, which uses a sixteenth of it). Use
 /// [`view::max_intermediate_pixels`] and [`composite::row_buffer_len`] to choose `PIX`
 /// and `ROW` for a maximum volume.
