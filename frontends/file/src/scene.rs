@@ -543,8 +543,23 @@ impl Renderer {
         camera: &Camera,
         look: &Look,
     ) -> Result<Vec<[u8; 4]>, Error> {
+        let mut out = Vec::new();
+        self.render_into(source, camera, look, &mut out)?;
+        Ok(out)
+    }
+
+    /// As [`Renderer::render`], into `out` (resized to the image; its allocation is
+    /// reused, as a caller rendering frame after frame wants: a fresh megabyte-sized
+    /// buffer per frame costs page faults on every frame).
+    pub fn render_into<S: SliceSource + Clone + Send>(
+        &mut self,
+        source: &mut S,
+        camera: &Camera,
+        look: &Look,
+        out: &mut Vec<[u8; 4]>,
+    ) -> Result<(), Error> {
         let frame = self.composite(source, camera, look)?;
-        self.warp(&frame.view)
+        self.warp_into(&frame.view, out)
     }
 
     /// Composites every slice of `source` into the held intermediate image and returns
@@ -700,6 +715,13 @@ impl Renderer {
     /// frame's view, or one whose image-to-intermediate map was changed, e.g. for zoom),
     /// output rows split across the threads; returns `view.image` RGBA8 pixels.
     pub fn warp(&self, view: &Factorization) -> Result<Vec<[u8; 4]>, Error> {
+        let mut out = Vec::new();
+        self.warp_into(view, &mut out)?;
+        Ok(out)
+    }
+
+    /// As [`Renderer::warp`], into `frame` (resized to the image; every pixel is written).
+    pub fn warp_into(&self, view: &Factorization, frame: &mut Vec<[u8; 4]>) -> Result<(), Error> {
         let [iw, ih] = view.intermediate;
         let pixels = self.pixels.get(..iw * ih).ok_or(Error::BufferTooSmall {
             what: "intermediate pixels",
@@ -707,15 +729,15 @@ impl Renderer {
             got: self.pixels.len(),
         })?;
         let [w, h] = view.image;
-        let mut frame = vec![[0u8; 4]; w * h];
+        frame.truncate(w * h);
+        frame.resize(w * h, [0; 4]);
         let Some(pool) = self.pool.as_ref().filter(|_| self.rows.len() > 1) else {
             let mut row = vec![[0u8; 4]; w];
             let mut sink = FrameBuffer {
                 width: w,
-                pixels: &mut frame,
+                pixels: frame,
             };
-            warp::warp(pixels, view, &mut row, &mut sink)?;
-            return Ok(frame);
+            return warp::warp(pixels, view, &mut row, &mut sink);
         };
         // Every row is computed on its own, so the result does not depend on the split.
         let strip = h.div_ceil(self.rows.len()).max(1);
@@ -758,7 +780,7 @@ impl Renderer {
             }
         });
         match failed.into_inner() {
-            Ok(None) => Ok(frame),
+            Ok(None) => Ok(()),
             Ok(Some(e)) => Err(e),
             Err(_) => Err(Error::Source {
                 reason: "a warp thread panicked",
