@@ -79,6 +79,7 @@ pub fn warp_rows(
         rows,
         row,
         |q| q.map(fixed::to_u8),
+        interior_u8,
         |y, r| sink.put_row(y, r),
     )
 }
@@ -92,23 +93,28 @@ pub fn warp_rows_q15(
     row: &mut [[u16; 4]],
     mut put_row: impl FnMut(usize, &[[u16; 4]]) -> Result<(), Error>,
 ) -> Result<(), Error> {
+    let convert = |q: [u32; 4]| q.map(|c| c.min(ONE) as u16);
     warp_generic(
         px,
         view,
         rows,
         row,
-        |q| q.map(|c| c.min(ONE) as u16),
+        convert,
+        |t: &[Rgba; 2], b: &[Rgba; 2], w| convert(interior(t, b, w)),
         |y, r| put_row(y, r),
     )
 }
 
-/// The warp loop, generic over the output pixel: `convert` turns a Q15 sample into it.
+/// The warp loop, generic over the output pixel: `convert` turns a Q15 sample into it,
+/// and `inner` gives the same result as `convert` of [`interior`] for a sample whose four
+/// taps lie inside the intermediate image (most of them, so a faster one pays).
 fn warp_generic<T: Copy>(
     px: &[Rgba],
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [T],
     convert: impl Fn([u32; 4]) -> T,
+    inner: impl Fn(&[Rgba; 2], &[Rgba; 2], [u32; 4]) -> T,
     mut put_row: impl FnMut(usize, &[T]) -> Result<(), Error>,
 ) -> Result<(), Error> {
     let zero = convert([0; 4]);
@@ -132,7 +138,7 @@ fn warp_generic<T: Copy>(
             let mut num = [at(0), at(1), at(2)];
             for out in row.iter_mut() {
                 *out = match project(num) {
-                    Some((u, v)) => convert(sample(px, iw, ih, u, v)),
+                    Some((u, v)) => sample(px, iw, ih, u, v, zero, &convert, &inner),
                     None => zero,
                 };
                 for (n, s) in num.iter_mut().zip(step) {
@@ -143,7 +149,7 @@ fn warp_generic<T: Copy>(
             let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
             let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
             for out in row.iter_mut() {
-                *out = convert(sample(px, iw, ih, u, v));
+                *out = sample(px, iw, ih, u, v, zero, &convert, &inner);
                 u += du;
                 v += dv;
             }
@@ -175,44 +181,49 @@ fn project(n: [i64; 3]) -> Option<(i64, i64)> {
     Some((div(n[0])?, div(n[1])?))
 }
 
-/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, Q15 per channel;
-/// zero outside.
+/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, as `convert` of
+/// the Q15 sample (`inner` where all four taps are inside); `zero` outside.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u32; 4] {
+fn sample<T: Copy>(
+    px: &[Rgba],
+    iw: i64,
+    ih: i64,
+    u: i64,
+    v: i64,
+    zero: T,
+    convert: &impl Fn([u32; 4]) -> T,
+    inner: &impl Fn(&[Rgba; 2], &[Rgba; 2], [u32; 4]) -> T,
+) -> T {
     let one = 1i64 << FRAC;
     let u0 = u >> FRAC;
     let v0 = v >> FRAC;
     if u0 < -1 || v0 < -1 || u0 >= iw || v0 >= ih {
-        return [0; 4];
+        return zero;
     }
     let fu = ((one - (u & (one - 1))) >> 1) as u32;
     let fv = ((one - (v & (one - 1))) >> 1) as u32;
-    let wts = fixed::bilinear_weights(fu, fv);
-    let mut acc = [0u32; 4];
     // Inside: all four taps exist; two 2-pixel reads, no per-tap checks.
     if u0 >= 0 && v0 >= 0 && u0 + 1 < iw && v0 + 1 < ih {
         let base = (v0 * iw + u0) as usize;
         let w = iw as usize;
-        if let (Some(top), Some(bot)) = (px.get(base..base + 2), px.get(base + w..base + w + 2)) {
+        let top = px
+            .get(base..base + 2)
+            .and_then(|t| <&[Rgba; 2]>::try_from(t).ok());
+        let bot = px
+            .get(base + w..base + w + 2)
+            .and_then(|b| <&[Rgba; 2]>::try_from(b).ok());
+        if let (Some(top), Some(bot)) = (top, bot) {
             // Empty background (most of a frame around a small volume) needs no weights.
             let any = |p: &Rgba| p.iter().fold(0, |a, &c| a | c);
             if any(&top[0]) | any(&top[1]) | any(&bot[0]) | any(&bot[1]) == 0 {
-                return [0; 4];
+                return zero;
             }
-            for c in 0..4 {
-                acc[c] = wts[0] * top[0][c] as u32
-                    + wts[1] * top[1][c] as u32
-                    + wts[2] * bot[0][c] as u32
-                    + wts[3] * bot[1][c] as u32;
-            }
-            return [
-                (acc[0] + (1 << 14)) >> 15,
-                (acc[1] + (1 << 14)) >> 15,
-                (acc[2] + (1 << 14)) >> 15,
-                (acc[3] + (1 << 14)) >> 15,
-            ];
+            return inner(top, bot, fixed::bilinear_weights(fu, fv));
         }
     }
+    let wts = fixed::bilinear_weights(fu, fv);
+    let mut acc = [0u32; 4];
     let taps = [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)];
     for (&(tu, tv), &wt) in taps.iter().zip(wts.iter()) {
         if wt != 0 && tu >= 0 && tv >= 0 && tu < iw && tv < ih {
@@ -222,5 +233,88 @@ fn sample(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64) -> [u32; 4] {
             }
         }
     }
+    convert(acc.map(|a| (a + (1 << 14)) >> 15))
+}
+
+/// The Q15 bilinear sample of the taps `top` and `bot` (left, right) with weights `w`
+/// (top left, top right, bottom left, bottom right), rounded.
+#[inline(always)]
+fn interior(top: &[Rgba; 2], bot: &[Rgba; 2], w: [u32; 4]) -> [u32; 4] {
+    let mut acc = [0u32; 4];
+    for c in 0..4 {
+        acc[c] = w[0] * top[0][c] as u32
+            + w[1] * top[1][c] as u32
+            + w[2] * bot[0][c] as u32
+            + w[3] * bot[1][c] as u32;
+    }
     acc.map(|a| (a + (1 << 14)) >> 15)
+}
+
+/// Two channels per 64-bit word, 32 bits each: `c0 | c2 << 32` and `c1 | c3 << 32`.
+const LANES: u64 = 0x0000_FFFF_0000_FFFF;
+
+/// `fixed::to_u8` of [`interior`], two channels per 64-bit multiply: each lane's
+/// products and sums stay below 2^31 (weights and channels are at most 2^15 and the
+/// weights sum to 2^15), so the lanes never carry into each other and every rounding is
+/// the per-channel one. A channel above `ONE` (which no compositor writes) takes the
+/// per-channel path, which clamps it.
+#[inline(always)]
+fn interior_u8(top: &[Rgba; 2], bot: &[Rgba; 2], w: [u32; 4]) -> [u8; 4] {
+    let split = |p: &Rgba| -> (u64, u64) {
+        let x = p[0] as u64 | (p[1] as u64) << 16 | (p[2] as u64) << 32 | (p[3] as u64) << 48;
+        (x & LANES, (x >> 16) & LANES)
+    };
+    let taps = [
+        split(&top[0]),
+        split(&top[1]),
+        split(&bot[0]),
+        split(&bot[1]),
+    ];
+    let (mut even, mut odd) = (0u64, 0u64);
+    for (&(e, o), &wt) in taps.iter().zip(w.iter()) {
+        even += wt as u64 * e;
+        odd += wt as u64 * o;
+    }
+    const HALF: u64 = 1 << 14 | 1 << 46;
+    let even = ((even + HALF) >> 15) & LANES;
+    let odd = ((odd + HALF) >> 15) & LANES;
+    // A lane above 0x8000 sets bit 16 of its lane when 0x7FFF is added.
+    const OVER: u64 = 0x7FFF | 0x7FFF << 32;
+    if ((even + OVER) | (odd + OVER)) & (1 << 16 | 1 << 48) != 0 {
+        return interior(top, bot, w).map(fixed::to_u8);
+    }
+    const BYTES: u64 = 0xFF | 0xFF << 32;
+    let to8 = |x: u64| ((x * 255 + HALF) >> 15) & BYTES;
+    let (even, odd) = (to8(even), to8(odd));
+    [even as u8, odd as u8, (even >> 32) as u8, (odd >> 32) as u8]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_lane_interior_equals_the_per_channel_sample() {
+        let mut seed = 0x853c_49e6_748f_ea9bu64;
+        let mut next = |m: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            match seed & 7 {
+                0 => m,
+                1 => 0,
+                _ => ((seed >> 24) % (m as u64 + 1)) as u32,
+            }
+        };
+        for round in 0..20_000 {
+            // Channels up to ONE, and now and then past it (the clamped path).
+            let max = if round % 16 == 0 { 0xFFFF } else { ONE };
+            let mut px = || -> Rgba { core::array::from_fn(|_| next(max) as u16) };
+            let top = [px(), px()];
+            let bot = [px(), px()];
+            let w = fixed::bilinear_weights(next(ONE), next(ONE));
+            let want = interior(&top, &bot, w).map(fixed::to_u8);
+            assert_eq!(interior_u8(&top, &bot, w), want, "{top:?} {bot:?} {w:?}");
+        }
+    }
 }
