@@ -740,44 +740,39 @@ impl Renderer {
             return warp::warp(pixels, view, &mut row, &mut sink);
         };
         // Every row is computed on its own, so the result does not depend on the split.
-        let strip = h.div_ceil(self.rows.len()).max(1);
-        let strip_warp = |i: usize, chunk: &mut [[u8; 4]]| -> Result<(), Error> {
-            let mut row = vec![[0u8; 4]; w];
-            let mut sink = StripSink {
-                first_row: i * strip,
-                width: w,
-                pixels: chunk,
-            };
-            warp::warp_rows(
-                pixels,
-                view,
-                i * strip..(i + 1) * strip,
-                &mut row,
-                &mut sink,
-            )
-        };
+        // Strips of WARP_ROWS rows are claimed as threads finish: the object rarely
+        // covers the top and bottom halves of the image alike.
+        const WARP_ROWS: usize = 16;
+        let strips = Mutex::new(frame.chunks_mut(WARP_ROWS * w).enumerate());
         let failed: Mutex<Option<Error>> = Mutex::new(None);
-        pool.in_place_scope(|scope| {
-            let mut chunks = frame.chunks_mut(strip * w).enumerate();
-            // The calling thread warps the first strip.
-            let first = chunks.next();
-            for (i, chunk) in chunks {
-                let (strip_warp, failed) = (&strip_warp, &failed);
-                scope.spawn(move |_| {
-                    if let Err(e) = strip_warp(i, chunk) {
-                        if let Ok(mut f) = failed.lock() {
-                            f.get_or_insert(e);
-                        }
-                    }
-                });
-            }
-            if let Some((i, chunk)) = first {
-                if let Err(e) = strip_warp(i, chunk) {
+        let work = || {
+            let mut row = vec![[0u8; 4]; w];
+            loop {
+                let next = match strips.lock() {
+                    Ok(mut s) => s.next(),
+                    Err(_) => None,
+                };
+                let Some((i, chunk)) = next else { return };
+                let mut sink = StripSink {
+                    first_row: i * WARP_ROWS,
+                    width: w,
+                    pixels: chunk,
+                };
+                let rows = i * WARP_ROWS..(i + 1) * WARP_ROWS;
+                if let Err(e) = warp::warp_rows(pixels, view, rows, &mut row, &mut sink) {
                     if let Ok(mut f) = failed.lock() {
                         f.get_or_insert(e);
                     }
+                    return;
                 }
             }
+        };
+        pool.in_place_scope(|scope| {
+            for _ in 1..self.rows.len() {
+                scope.spawn(|_| work());
+            }
+            // The calling thread takes strips too.
+            work();
         });
         match failed.into_inner() {
             Ok(None) => Ok(()),
