@@ -185,13 +185,6 @@ impl ShadeTable {
     pub fn fill(&mut self, lighting: &Lighting, rot: &[[f64; 3]; 3]) -> Result<(), Error> {
         lighting.validate()?;
         const Q14: f64 = (1 << 14) as f64;
-        // Light and half vectors in object space, Q14; light colour times kd / ks, Q15.
-        struct L {
-            d: [i32; 3],
-            h: [i32; 3],
-            kd: [u32; 3],
-            ks: [u32; 3],
-        }
         let mut lights: Vec<L, MAX_LIGHTS> = Vec::new();
         for l in &lighting.lights {
             let n = norm(l.direction);
@@ -222,47 +215,19 @@ impl ShadeTable {
         // ks·x^shininess for x = i/1024, Q15, interpolated linearly between entries.
         let spec = self.spec.update(lighting.ks, lighting.shininess);
         let ka = q15(lighting.ka);
-        let cap = |x: u32| x.min(u16::MAX as u32) as u16;
-        for code in 0..normal::CODES {
-            let mut d = [ka; 3];
-            let mut sp = [0u32; 3];
-            match normal::UNIT.get(code) {
-                Some(n) => {
-                    let n = [n[0] as i32, n[1] as i32, n[2] as i32];
-                    let dot = |v: &[i32; 3]| -> u32 {
-                        let s = n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
-                        // |n·v| in Q14, clamped against rounding past 1.
-                        ((s.unsigned_abs() + (1 << 13)) >> 14).min(1 << 14)
-                    };
-                    for l in &lights {
-                        let nd = dot(&l.d) << 1; // Q15
-                        let nh = dot(&l.h);
-                        let i = (nh >> 4) as usize;
-                        let f = nh & 15;
-                        let lo = spec[i];
-                        let hi = spec[(i + 1).min(SPEC_STEPS)];
-                        let s = (lo * (16 - f) + hi * f + 8) >> 4;
-                        for c in 0..3 {
-                            // u64: kd and ks may reach 16 (validation), so the products can pass u32.
-                            d[c] += ((l.kd[c] as u64 * nd as u64 + (1 << 14)) >> 15).min(1 << 20)
-                                as u32;
-                            sp[c] +=
-                                ((s as u64 * l.ks[c] as u64 + (1 << 14)) >> 15).min(1 << 20) as u32;
-                        }
-                    }
-                }
-                None => {
-                    for l in &lights {
-                        for (dc, kd) in d.iter_mut().zip(l.kd) {
-                            *dc += kd;
-                        }
-                    }
-                }
+        // White lights (the usual case) give three equal channels: compute one.
+        let grey = lights
+            .iter()
+            .all(|l| l.kd.iter().all(|&k| k == l.kd[0]) && l.ks.iter().all(|&k| k == l.ks[0]));
+        let unit = |code: usize| normal::UNIT.get(code);
+        if grey {
+            for (code, e) in self.entries.iter_mut().enumerate() {
+                *e = entry::<1>(unit(code), &lights, spec, ka);
             }
-            self.entries[code] = ShadeEntry {
-                diffuse: d.map(cap),
-                specular: sp.map(|x| x.min(ONE) as u16),
-            };
+        } else {
+            for (code, e) in self.entries.iter_mut().enumerate() {
+                *e = entry::<3>(unit(code), &lights, spec, ka);
+            }
         }
         Ok(())
     }
@@ -292,11 +257,98 @@ impl ShadeTable {
     }
 }
 
+/// A light and its half vector in object space, Q14, and its colour times kd and ks, Q15.
+struct L {
+    d: [i32; 3],
+    h: [i32; 3],
+    kd: [u32; 3],
+    ks: [u32; 3],
+}
+
+/// The entry for unit normal `n` (`None`: the zero-gradient code, full diffuse light)
+/// under `lights`, computing `N` channels (1: the lights are white and the channels
+/// equal, so the first is copied; 3: all).
+#[inline(always)]
+fn entry<const N: usize>(
+    n: Option<&[i16; 3]>,
+    lights: &[L],
+    spec: &[u32; SPEC_STEPS + 1],
+    ka: u32,
+) -> ShadeEntry {
+    let mut d = [ka; 3];
+    let mut sp = [0u32; 3];
+    match n {
+        Some(n) => {
+            let n = [n[0] as i32, n[1] as i32, n[2] as i32];
+            let dot = |v: &[i32; 3]| -> u32 {
+                let s = n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+                // |n·v| in Q14, clamped against rounding past 1.
+                ((s.unsigned_abs() + (1 << 13)) >> 14).min(1 << 14)
+            };
+            for l in lights {
+                let nd = dot(&l.d) << 1; // Q15
+                let nh = dot(&l.h);
+                let i = (nh >> 4) as usize;
+                let f = nh & 15;
+                let lo = spec[i];
+                let hi = spec[(i + 1).min(SPEC_STEPS)];
+                let s = (lo * (16 - f) + hi * f + 8) >> 4;
+                for c in 0..N {
+                    // u64: kd and ks may reach 16 (validation), so the products can pass u32.
+                    d[c] += ((l.kd[c] as u64 * nd as u64 + (1 << 14)) >> 15).min(1 << 20) as u32;
+                    sp[c] += ((s as u64 * l.ks[c] as u64 + (1 << 14)) >> 15).min(1 << 20) as u32;
+                }
+            }
+        }
+        None => {
+            for l in lights {
+                for (dc, kd) in d.iter_mut().zip(l.kd).take(N) {
+                    *dc += kd;
+                }
+            }
+        }
+    }
+    if N == 1 {
+        d = [d[0]; 3];
+        sp = [sp[0]; 3];
+    }
+    let cap = |x: u32| x.min(u16::MAX as u32) as u16;
+    ShadeEntry {
+        diffuse: d.map(cap),
+        specular: sp.map(|x| x.min(ONE) as u16),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     const ID: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+    #[test]
+    fn the_one_channel_path_equals_the_three_channel_one_for_white_lights() {
+        let spec: [u32; SPEC_STEPS + 1] = core::array::from_fn(|i| (i * i / 40) as u32);
+        let light = |d: [i32; 3], kd: u32, ks: u32| L {
+            d,
+            h: [d[1], d[2], d[0]],
+            kd: [kd; 3],
+            ks: [ks; 3],
+        };
+        let lights = [
+            light([16384, 0, 0], 22938, 32768),
+            light([-9000, 9000, 9000], 400_000, 524_288),
+        ];
+        for code in 0..normal::CODES {
+            let n = normal::UNIT.get(code);
+            for k in 1..=2 {
+                assert_eq!(
+                    entry::<1>(n, &lights[..k], &spec, 6554),
+                    entry::<3>(n, &lights[..k], &spec, 6554),
+                    "code {code}, {k} lights"
+                );
+            }
+        }
+    }
 
     #[test]
     fn a_reused_table_equals_a_fresh_one_after_the_material_changes() {
