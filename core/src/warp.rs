@@ -146,9 +146,14 @@ fn warp_generic<T: Copy>(
                 }
             }
         } else {
-            let mut u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
-            let mut v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
-            for out in row.iter_mut() {
+            let u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
+            let v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
+            // Only pixels xa..xb of the row reach the intermediate image at all.
+            let (xa, xb) = reach(u, du, iw, v, dv, ih, w);
+            row[..xa].fill(zero);
+            row[xb..].fill(zero);
+            let (mut u, mut v) = (u + xa as i64 * du, v + xa as i64 * dv);
+            for out in &mut row[xa..xb] {
                 *out = sample(px, iw, ih, u, v, zero, &convert, &inner);
                 u += du;
                 v += dv;
@@ -157,6 +162,53 @@ fn warp_generic<T: Copy>(
         put_row(y, row)?;
     }
     Ok(())
+}
+
+/// True if the 16.16 position `(u, v)` has a tap inside an `iw×ih` intermediate image
+/// (the test [`sample`] makes before it reads anything).
+#[inline(always)]
+fn reaches(u: i64, v: i64, iw: i64, ih: i64) -> bool {
+    let (u0, v0) = (u >> FRAC, v >> FRAC);
+    u0 >= -1 && v0 >= -1 && u0 < iw && v0 < ih
+}
+
+/// The pixels `xa..xb` of a `w`-pixel row, starting at `(u, v)` and stepping by
+/// `(du, dv)`, that reach the intermediate image ([`reaches`]): the others sample zero.
+/// The positions are affine in x, so these pixels are one interval; it is estimated in
+/// floating point and then settled with the exact test at both ends.
+fn reach(u: i64, du: i64, iw: i64, v: i64, dv: i64, ih: i64, w: usize) -> (usize, usize) {
+    let one = (1i64 << FRAC) as f64;
+    // x with lo ≤ p + x·dp < hi, as a real interval.
+    let span = |p: i64, dp: i64, n: i64| -> (f64, f64) {
+        let (lo, hi) = (-one - p as f64, n as f64 * one - p as f64);
+        match dp {
+            0 if lo <= 0.0 && hi > 0.0 => (f64::NEG_INFINITY, f64::INFINITY),
+            0 => (0.0, 0.0),
+            d if d > 0 => (lo / d as f64, hi / d as f64),
+            d => (hi / d as f64, lo / d as f64),
+        }
+    };
+    let (a0, b0) = span(u, du, iw);
+    let (a1, b1) = span(v, dv, ih);
+    let wf = w as f64;
+    let mut xa = libm::ceil(a0.max(a1)).clamp(0.0, wf) as usize;
+    let mut xb = libm::ceil(b0.min(b1)).clamp(0.0, wf) as usize;
+    xb = xb.max(xa);
+    let at = |x: usize| reaches(u + x as i64 * du, v + x as i64 * dv, iw, ih);
+    while xa > 0 && at(xa - 1) {
+        xa -= 1;
+    }
+    while xa < xb && !at(xa) {
+        xa += 1;
+    }
+    xb = xb.max(xa);
+    while xb < w && at(xb) {
+        xb += 1;
+    }
+    while xb > xa && !at(xb - 1) {
+        xb -= 1;
+    }
+    (xa, xb)
 }
 
 /// Fraction bits of the projective warp's homogeneous coordinates.
@@ -198,7 +250,7 @@ fn sample<T: Copy>(
     let one = 1i64 << FRAC;
     let u0 = u >> FRAC;
     let v0 = v >> FRAC;
-    if u0 < -1 || v0 < -1 || u0 >= iw || v0 >= ih {
+    if !reaches(u, v, iw, ih) {
         return zero;
     }
     let fu = ((one - (u & (one - 1))) >> 1) as u32;
@@ -292,6 +344,35 @@ fn interior_u8(top: &[Rgba; 2], bot: &[Rgba; 2], w: [u32; 4]) -> [u8; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_reached_interval_is_exactly_the_pixels_that_reach_the_image() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |m: i64| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as i64 % (2 * m + 1) - m
+        };
+        let one = 1i64 << FRAC;
+        for round in 0..20_000 {
+            let (iw, ih) = (1 + next(60).abs(), 1 + next(60).abs());
+            let w = next(150).unsigned_abs() as usize;
+            let (u, v) = (next(100 * one), next(100 * one));
+            // Steps of all sizes and signs, zero and near-zero ones included.
+            let step = |next: &mut dyn FnMut(i64) -> i64| match round % 4 {
+                0 => 0,
+                1 => next(3),
+                _ => next(3 * one),
+            };
+            let (du, dv) = (step(&mut next), step(&mut next));
+            let (xa, xb) = reach(u, du, iw, v, dv, ih, w);
+            for x in 0..w {
+                let r = reaches(u + x as i64 * du, v + x as i64 * dv, iw, ih);
+                assert_eq!(r, x >= xa && x < xb, "round {round}: x {x} in {xa}..{xb}");
+            }
+        }
+    }
 
     #[test]
     fn two_lane_interior_equals_the_per_channel_sample() {
