@@ -922,14 +922,10 @@ mod tests {
         assert_eq!(&v[..], &[(1, 5), (7, 10)]);
     }
 
-    /// A xorshift stream for the kernel tests.
-    fn rng(mut seed: u64) -> impl FnMut(u32) -> u32 {
-        move |m: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            ((seed >> 20) % (m as u64 + 1)) as u32
-        }
+    /// Uniform values in `0..=m` from a xorshift stream.
+    fn rng(seed: u64) -> impl FnMut(u32) -> u32 {
+        let mut r = crate::xorshift(seed);
+        move |m: u32| ((r() >> 20) % (m as u64 + 1)) as u32
     }
 
     #[test]
@@ -1088,11 +1084,9 @@ mod tests {
         // Random premultiplied rows (channels up to alpha, alpha up to ONE, edge values
         // and transparent stretches included) composited under random pixels that are
         // not yet opaque (alpha below the threshold, or zero) through both kernels.
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rand = crate::xorshift(0x9e37_79b9_7f4a_7c15);
         let mut next = |m: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
+            let seed = rand();
             let r = (seed >> 20) as u32 % (m + 1);
             match seed & 7 {
                 0 => m,

@@ -46,3 +46,14 @@ pub mod view;
 pub mod warp;
 
 pub use error::Error;
+
+/// A xorshift64 stream for the unit tests' random cases (the core has no `rand`).
+#[cfg(test)]
+pub(crate) fn xorshift(mut seed: u64) -> impl FnMut() -> u64 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    }
+}

@@ -347,13 +347,8 @@ mod tests {
 
     #[test]
     fn the_reached_interval_is_exactly_the_pixels_that_reach_the_image() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = |m: i64| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as i64 % (2 * m + 1) - m
-        };
+        let mut rand = crate::xorshift(0x2545_f491_4f6c_dd1d);
+        let mut next = |m: i64| (rand() >> 11) as i64 % (2 * m + 1) - m;
         let one = 1i64 << FRAC;
         for round in 0..20_000 {
             let (iw, ih) = (1 + next(60).abs(), 1 + next(60).abs());
@@ -376,11 +371,9 @@ mod tests {
 
     #[test]
     fn two_lane_interior_equals_the_per_channel_sample() {
-        let mut seed = 0x853c_49e6_748f_ea9bu64;
+        let mut rand = crate::xorshift(0x853c_49e6_748f_ea9b);
         let mut next = |m: u32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
+            let seed = rand();
             match seed & 7 {
                 0 => m,
                 1 => 0,
