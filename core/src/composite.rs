@@ -76,10 +76,10 @@ pub struct Intermediate<'a> {
 }
 
 impl<'a> Intermediate<'a> {
-    /// Borrows buffers of at least `width·height` entries each and clears them. `links`
-    /// holds the opaque-pixel bitmap (it needs only [`opaque::words`]`(width)` entries per
-    /// scanline; the length asked for is the one the per-pixel links of earlier versions
-    /// took, so existing callers keep working).
+    /// Borrows `pixels` (at least `width·height` entries) and `links` and clears them.
+    /// `links` holds the opaque-pixel bitmap: at least [`opaque::words`]`(width)` entries
+    /// per scanline. `width·height`, which the per-pixel links of earlier versions took,
+    /// is always enough, so existing callers keep working.
     pub fn new(
         width: usize,
         height: usize,
@@ -90,7 +90,8 @@ impl<'a> Intermediate<'a> {
     }
 
     /// Scanlines `row0..row0 + rows` of a `width×height` intermediate image, stored in
-    /// buffers of at least `width·rows` entries (cleared here).
+    /// `pixels` (at least `width·rows` entries) and `links` (at least
+    /// [`opaque::words`]`(width)·rows`), both cleared here.
     pub fn band(
         width: usize,
         height: usize,

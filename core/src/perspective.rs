@@ -11,7 +11,8 @@
 //! each voxel row of a slice is filtered horizontally once, into an intermediate-width
 //! row held in a small ring, and every intermediate scanline combines the few ring rows
 //! under its footprint. Only pixel ranges touched by non-transparent voxel runs are
-//! filtered, and opaque intermediate pixels are linked over as in the parallel path.
+//! filtered, and opaque intermediate pixels are skipped through the opaque-pixel bitmap as
+//! in the parallel path.
 //!
 //! Opacity correction differs from ray to ray (the step between slices along a ray from
 //! the eye grows off-axis, §4.2.3), but is constant along each ray. Voxels are corrected
