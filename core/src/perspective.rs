@@ -112,7 +112,7 @@ impl RayGain {
     }
 }
 
-/// Row-buffer entries [`composite_slice`] needs for `view`: one shaded voxel row plus
+/// Row-buffer entries [`crate::composite::composite_slice`] needs for `view`: one shaded voxel row plus
 /// a ring of filtered rows as wide as the intermediate image.
 pub fn row_buffer_len(view: &Factorization) -> usize {
     view.dims[0] + 2 + ring_len(view) * view.intermediate[0]
