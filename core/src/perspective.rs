@@ -112,8 +112,8 @@ impl RayGain {
     }
 }
 
-/// Row-buffer entries [`crate::composite::composite_slice`] needs for `view`: one shaded voxel row plus
-/// a ring of filtered rows as wide as the intermediate image.
+/// Row-buffer entries [`crate::composite::composite_slice`] needs for `view`: one shaded
+/// voxel row plus a ring of filtered rows as wide as the intermediate image.
 pub fn row_buffer_len(view: &Factorization) -> usize {
     view.dims[0] + 2 + ring_len(view) * view.intermediate[0]
 }
