@@ -315,9 +315,7 @@ impl<'b> Row<'b> {
                 Some(n) => {
                     // Shade only the voxels that open pixels of the reading scanlines
                     // reach, 64 at a time from the opaque-pixel bitmaps.
-                    let mut x = a;
-                    while x < b {
-                        let mut m = n.voxels(x) & opaque::ones(b - x);
+                    for (x, mut m) in n.masks(a, b) {
                         while m != 0 {
                             let z = m.trailing_zeros() as usize;
                             let len = (!(m >> z)).trailing_zeros() as usize;
@@ -330,7 +328,6 @@ impl<'b> Row<'b> {
                             let src = &voxels[base + (c - a)..base + (d - a)];
                             shade_run(&mut self.buf[c + 1..d + 1], src, c, t, scale, j, shadow);
                         }
-                        x += 64;
                     }
                 }
             }
@@ -366,14 +363,16 @@ impl<'a> Needed<'a> {
         let Some((first, last)) = visible_extent(runs, ni) else {
             return true;
         };
-        let mut x = first;
-        while x < last {
-            if self.voxels(x) & opaque::ones(last - x) != 0 {
-                return false;
-            }
-            x += 64;
-        }
-        true
+        self.masks(first, last).all(|(_, m)| m == 0)
+    }
+
+    /// The voxels of positions `a..b` that an open pixel reads, 64 at a time: `(x, m)`
+    /// with bit `t` of `m` set if voxel `x + t` is read.
+    #[inline(always)]
+    fn masks(&self, a: usize, b: usize) -> impl Iterator<Item = (usize, u64)> + '_ {
+        (a..b)
+            .step_by(64)
+            .map(move |x| (x, self.voxels(x) & opaque::ones(b - x)))
     }
 
     /// Bit `t` set if voxel `x + t` is read by an open pixel: it is not when both of its
