@@ -255,6 +255,7 @@ fn sample<T: Copy>(
     }
     let fu = ((one - (u & (one - 1))) >> 1) as u32;
     let fv = ((one - (v & (one - 1))) >> 1) as u32;
+    let wts = fixed::bilinear_weights(fu, fv);
     // Inside: all four taps exist; two 2-pixel reads, no per-tap checks.
     if u0 >= 0 && v0 >= 0 && u0 + 1 < iw && v0 + 1 < ih {
         let base = (v0 * iw + u0) as usize;
@@ -271,21 +272,21 @@ fn sample<T: Copy>(
             if any(&top[0]) | any(&top[1]) | any(&bot[0]) | any(&bot[1]) == 0 {
                 return zero;
             }
-            return inner(top, bot, fixed::bilinear_weights(fu, fv));
+            return inner(top, bot, wts);
         }
     }
-    let wts = fixed::bilinear_weights(fu, fv);
-    let mut acc = [0u32; 4];
-    let taps = [(u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)];
-    for (&(tu, tv), &wt) in taps.iter().zip(wts.iter()) {
-        if wt != 0 && tu >= 0 && tv >= 0 && tu < iw && tv < ih {
-            let p = px[(tv * iw + tu) as usize];
-            for c in 0..4 {
-                acc[c] += wt * p[c] as u32;
-            }
-        }
-    }
-    convert(acc.map(|a| (a + (1 << 14)) >> 15))
+    // At the image's edge, the taps outside it read as zero.
+    let tap = |tu: i64, tv: i64| -> Rgba {
+        let inside = tu >= 0 && tv >= 0 && tu < iw && tv < ih;
+        let at = (tv * iw + tu) as usize;
+        inside
+            .then(|| px.get(at).copied())
+            .flatten()
+            .unwrap_or([0; 4])
+    };
+    let top = [tap(u0, v0), tap(u0 + 1, v0)];
+    let bot = [tap(u0, v0 + 1), tap(u0 + 1, v0 + 1)];
+    convert(interior(&top, &bot, wts))
 }
 
 /// The Q15 bilinear sample of the taps `top` and `bot` (left, right) with weights `w`
