@@ -119,7 +119,8 @@ pub struct ShadeTable {
     pub entries: [ShadeEntry; normal::CODES],
     /// The specular power table of the last [`ShadeTable::fill`] and the (ks, shininess)
     /// it was made for: it depends on the material alone, so a turning view reuses it
-    /// instead of evaluating 1025 `pow`s per frame (a tenth of a small frame's setup).
+    /// instead of evaluating 1025 `pow`s per frame (on brainsmall they were about a
+    /// quarter of the table's fill in `perf`).
     spec: SpecTable,
 }
 
@@ -245,15 +246,7 @@ impl ShadeTable {
     /// Shades a Q15 colour with the entry for `code`: `min(1, c·D + S)` per channel.
     #[inline(always)]
     pub fn shade(&self, code: u16, c: [u16; 3]) -> [u32; 3] {
-        let ShadeEntry {
-            diffuse: d,
-            specular: s,
-        } = self.entry(code);
-        let mut out = [0u32; 3];
-        for ch in 0..3 {
-            out[ch] = (fixed::mul(c[ch] as u32, d[ch] as u32) + s[ch] as u32).min(ONE);
-        }
-        out
+        self.shade_raw(code, c).map(|x| x.min(ONE))
     }
 }
 
