@@ -410,40 +410,73 @@ impl warp::PixelSink for StripSink<'_> {
     }
 }
 
-/// The part of the intermediate image not yet handed to a thread: its first scanline,
-/// pixels and opaque-pixel bitmap.
+/// The part of an `iw×ih` intermediate image not yet handed to one of `threads`
+/// threads: its first scanline, pixels and opaque-pixel bitmap.
 struct Unclaimed<'a> {
+    iw: usize,
+    ih: usize,
+    threads: usize,
     row0: usize,
     pixels: &'a mut [Rgba],
     opaque: &'a mut [u16],
 }
 
 impl<'a> Unclaimed<'a> {
-    /// Claims the next band of `ih` scanlines `iw` wide (bitmap `stride` words per
-    /// scanline): its first scanline, length, pixels and bitmap. Bands shrink as the
-    /// image runs out (guided self-scheduling): a share of what is left for each of
-    /// `threads`, at least [`Renderer::BAND_ROWS`]. Each band costs a duplicated voxel
-    /// row and a cold start per slice, so early bands are long; short late bands keep
-    /// the threads finishing together.
-    fn claim(
-        &mut self,
-        iw: usize,
-        ih: usize,
-        stride: usize,
-        threads: usize,
-    ) -> Option<(usize, usize, &'a mut [Rgba], &'a mut [u16])> {
-        let left = ih.saturating_sub(self.row0);
+    /// Claims the next band: its first scanline, length, pixels and bitmap. Bands shrink
+    /// as the image runs out (guided self-scheduling): a share of what is left for each
+    /// thread, at least [`Renderer::BAND_ROWS`]. Each band costs a duplicated voxel row
+    /// and a cold start per slice, so early bands are long; short late bands keep the
+    /// threads finishing together.
+    fn claim(&mut self) -> Option<(usize, usize, &'a mut [Rgba], &'a mut [u16])> {
+        let left = self.ih.saturating_sub(self.row0);
         if left == 0 {
             return None;
         }
-        let rows = (left / (2 * threads)).max(Renderer::BAND_ROWS).min(left);
-        let (p, rest) = std::mem::take(&mut self.pixels).split_at_mut(rows * iw);
+        let rows = (left / (2 * self.threads))
+            .max(Renderer::BAND_ROWS)
+            .min(left);
+        let stride = shearwarp_core::opaque::words(self.iw);
+        let (p, rest) = std::mem::take(&mut self.pixels).split_at_mut(rows * self.iw);
         self.pixels = rest;
         let (o, rest) = std::mem::take(&mut self.opaque).split_at_mut(rows * stride);
         self.opaque = rest;
         let row0 = self.row0;
         self.row0 += rows;
         Some((row0, rows, p, o))
+    }
+}
+
+/// Calls `work` once per item of `each`, the first on the calling thread and the others
+/// on `pool`'s workers, and returns the first error (`panicked` names a poisoned lock).
+fn on_threads<T: Send>(
+    pool: &rayon::ThreadPool,
+    each: impl IntoIterator<Item = T>,
+    work: impl Fn(T) -> Result<(), Error> + Sync,
+    panicked: &'static str,
+) -> Result<(), Error> {
+    let failed: Mutex<Option<Error>> = Mutex::new(None);
+    let keep = |r: Result<(), Error>| {
+        if let (Err(e), Ok(mut f)) = (r, failed.lock()) {
+            f.get_or_insert(e);
+        }
+    };
+    pool.in_place_scope(|scope| {
+        let mut each = each.into_iter();
+        let first = each.next();
+        for item in each {
+            let (work, keep) = (&work, &keep);
+            scope.spawn(move |_| keep(work(item)));
+        }
+        // The calling thread works too (one thread fewer to wake, and its caches are
+        // warm).
+        if let Some(item) = first {
+            keep(work(item));
+        }
+    });
+    match failed.into_inner() {
+        Ok(None) => Ok(()),
+        Ok(Some(e)) => Err(e),
+        Err(_) => Err(Error::Source { reason: panicked }),
     }
 }
 
@@ -653,25 +686,23 @@ impl Renderer {
                 return Ok(done.then_some(frame));
             }
         };
-        let stride = shearwarp_core::opaque::words(iw);
-        let threads = self.rows.len();
+        const PANICKED: &str = "a compositing thread panicked";
         let queue = Mutex::new(Unclaimed {
+            iw,
+            ih,
+            threads: self.rows.len(),
             row0: 0,
             pixels: &mut self.pixels[..n],
-            opaque: &mut self.links[..stride * ih],
+            opaque: &mut self.links[..shearwarp_core::opaque::words(iw) * ih],
         });
-        let poisoned = || Error::Source {
-            reason: "a compositing thread panicked",
-        };
         let stopped = AtomicBool::new(false);
-        // One worker per row buffer; the calling thread is the first of them (one thread
-        // fewer to start per frame, and its caches are warm).
-        let work = |rows: &mut Vec<Rgba>, mut src: S| -> Result<(), Error> {
+        // One worker per row buffer, each with its own handle on the source.
+        let work = |(rows, mut src): (&mut Vec<Rgba>, S)| -> Result<(), Error> {
             loop {
                 let job = queue
                     .lock()
-                    .map_err(|_| poisoned())?
-                    .claim(iw, ih, stride, threads);
+                    .map_err(|_| Error::Source { reason: PANICKED })?
+                    .claim();
                 let Some((row0, here, p, l)) = job else {
                     return Ok(());
                 };
@@ -685,29 +716,8 @@ impl Renderer {
                 }
             }
         };
-        let (first, others) = self.rows.split_at_mut(1);
-        let failed: Mutex<Option<Error>> = Mutex::new(None);
-        let mine = pool.in_place_scope(|scope| {
-            for rows in others.iter_mut() {
-                let src = source.clone();
-                let (work, failed) = (&work, &failed);
-                scope.spawn(move |_| {
-                    if let Err(e) = work(rows, src) {
-                        if let Ok(mut f) = failed.lock() {
-                            f.get_or_insert(e);
-                        }
-                    }
-                });
-            }
-            match first.first_mut() {
-                Some(rows) => work(rows, source.clone()),
-                None => Ok(()),
-            }
-        });
-        mine?;
-        if let Some(e) = failed.into_inner().map_err(|_| poisoned())? {
-            return Err(e);
-        }
+        let each = self.rows.iter_mut().map(|rows| (rows, source.clone()));
+        on_threads(pool, each, work, PANICKED)?;
         Ok((!stopped.load(Ordering::Relaxed)).then_some(frame))
     }
 
@@ -729,7 +739,6 @@ impl Renderer {
             got: self.pixels.len(),
         })?;
         let [w, h] = view.image;
-        frame.truncate(w * h);
         frame.resize(w * h, [0; 4]);
         let Some(pool) = self.pool.as_ref().filter(|_| self.rows.len() > 1) else {
             let mut row = vec![[0u8; 4]; w];
@@ -743,44 +752,28 @@ impl Renderer {
         // Strips of WARP_ROWS rows are claimed as threads finish: the object rarely
         // covers the top and bottom halves of the image alike.
         const WARP_ROWS: usize = 16;
+        const PANICKED: &str = "a warp thread panicked";
         let strips = Mutex::new(frame.chunks_mut(WARP_ROWS * w).enumerate());
-        let failed: Mutex<Option<Error>> = Mutex::new(None);
-        let work = || {
+        let work = |_| -> Result<(), Error> {
             let mut row = vec![[0u8; 4]; w];
             loop {
-                let next = match strips.lock() {
-                    Ok(mut s) => s.next(),
-                    Err(_) => None,
+                let next = strips
+                    .lock()
+                    .map_err(|_| Error::Source { reason: PANICKED })?
+                    .next();
+                let Some((i, chunk)) = next else {
+                    return Ok(());
                 };
-                let Some((i, chunk)) = next else { return };
                 let mut sink = StripSink {
                     first_row: i * WARP_ROWS,
                     width: w,
                     pixels: chunk,
                 };
                 let rows = i * WARP_ROWS..(i + 1) * WARP_ROWS;
-                if let Err(e) = warp::warp_rows(pixels, view, rows, &mut row, &mut sink) {
-                    if let Ok(mut f) = failed.lock() {
-                        f.get_or_insert(e);
-                    }
-                    return;
-                }
+                warp::warp_rows(pixels, view, rows, &mut row, &mut sink)?;
             }
         };
-        pool.in_place_scope(|scope| {
-            for _ in 1..self.rows.len() {
-                scope.spawn(|_| work());
-            }
-            // The calling thread takes strips too.
-            work();
-        });
-        match failed.into_inner() {
-            Ok(None) => Ok(()),
-            Ok(Some(e)) => Err(e),
-            Err(_) => Err(Error::Source {
-                reason: "a warp thread panicked",
-            }),
-        }
+        on_threads(pool, 0..self.rows.len(), work, PANICKED)
     }
 }
 
