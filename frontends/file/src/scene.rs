@@ -500,8 +500,9 @@ pub struct Renderer {
     shade0: Box<ShadeTable>,
     supersample: usize,
     fov: Option<f64>,
-    /// The other `threads - 1` workers, started once: waking a parked thread takes a few
-    /// microseconds, starting one about 40 (measured here), twice a frame.
+    /// The other `threads - 1` workers, started once. Starting a thread took about 40 µs
+    /// here, twice a frame; waking a parked worker took 2 µs right after its last job
+    /// and 40–60 µs after a millisecond asleep.
     pool: Option<rayon::ThreadPool>,
 }
 
@@ -596,9 +597,9 @@ impl Renderer {
     }
 
     /// Composites every slice of `source` into the held intermediate image and returns
-    /// the frame (its `view` says how to warp it). Bands of [`Renderer::BAND_ROWS`]
-    /// scanlines go to the threads from a shared queue; with shadows the whole image is
-    /// one band on the calling thread.
+    /// the frame (its `view` says how to warp it). Bands of scanlines, long ones first
+    /// and at least [`Renderer::BAND_ROWS`], are claimed by the threads as they finish;
+    /// with shadows the whole image is one band on the calling thread.
     pub fn composite<S: SliceSource + Clone + Send>(
         &mut self,
         source: &mut S,
