@@ -288,6 +288,7 @@ impl<'b> Row<'b> {
     /// voxels some non-opaque pixel will read are shaded (the others stay zero, and only
     /// opaque pixels, which are never composited again, would read them).
     #[allow(clippy::too_many_arguments)]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     pub(crate) fn fill(
         &mut self,
         runs: &[u8],
@@ -535,7 +536,7 @@ impl Iterator for MergedSpans<'_> {
 /// prefetch; walking the row ahead streams the slice into the cache instead (about 10 %
 /// of a frame on the MR head, which otherwise waits on those reads). Bare-metal targets
 /// have no data cache to fill, so there it does nothing.
-#[inline]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn touch(voxels: &[Voxel]) {
     if cfg!(target_os = "none") {
         return;
@@ -564,7 +565,12 @@ pub fn composite_slice(
 /// [`composite_slice`] with `clean` saying whether `rows` is all zero on entry (every
 /// path leaves it all zero again on success, so a caller compositing slice after slice
 /// clears it once instead of once per slice and band).
+// Inlined on x86-64 so that the instruction-set builds of
+// [`crate::render::composite_band_until`] compile this loop for their own features (a
+// function that is not inlined keeps the baseline build); bare-metal targets keep one
+// copy, for flash.
 #[allow(clippy::too_many_arguments)]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 pub(crate) fn composite_slice_in(
     img: &mut Intermediate<'_>,
     slice: &RleSlice<'_>,
@@ -815,7 +821,7 @@ struct Taps<'r> {
 }
 
 /// The inner loop: pixels `us` of one scanline.
-#[inline]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn composite_span(
     pixels: &mut [Rgba],
     opaque: &mut [u16],
@@ -838,7 +844,7 @@ fn composite_span(
 /// is composited by [`over_run`], a loop without branches that the compiler vectorises,
 /// and the pixels that reached the early-ray-termination opacity are marked opaque
 /// afterwards. Bit-identical to [`composite_pixel`], which the tests check.
-#[inline]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn over_span(
     pixels: &mut [Rgba],
     opaque: &mut [u16],
@@ -875,7 +881,7 @@ fn over_span(
 /// Resamples `top`/`bot` (one entry longer than `px`) with weights `w` and composites
 /// the result under `px`. A zero sample leaves a pixel unchanged (`p + 0·(1 − α) = p`),
 /// so no pixel needs a test and the loop has no branches.
-#[inline]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn over_run(px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) {
     const H: u32 = 1 << 14;
     let w = w.map(|x| x as u16 as u32);

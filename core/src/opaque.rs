@@ -96,7 +96,7 @@ pub(crate) fn mark(line: &mut [u16], u: usize) {
 }
 
 /// The first open pixel in `u..end` of a `width`-pixel scanline, or `end` if none.
-#[inline]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 pub(crate) fn next_open(line: &[u16], width: usize, mut u: usize, end: usize) -> usize {
     while u < end {
         let w = open_bits(line, width, u as i64);
@@ -109,7 +109,7 @@ pub(crate) fn next_open(line: &[u16], width: usize, mut u: usize, end: usize) ->
 }
 
 /// The end of the run of open pixels that starts at the open pixel `u`, at most `end`.
-#[inline]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 pub(crate) fn open_run_end(line: &[u16], width: usize, mut u: usize, end: usize) -> usize {
     while u < end {
         let w = open_bits(line, width, u as i64);

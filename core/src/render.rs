@@ -284,11 +284,70 @@ pub fn composite_band<S: SliceSource>(
     composite_band_until(source, frame, tables, img, rows, shadow, &mut || true).map(|_| ())
 }
 
-/// [`composite_band`] that asks `keep_going` before every slice and stops when it says
-/// no: a frontend interrupts a frame that a newer view has made useless after at most one
-/// slice of work. Returns whether the band was finished (an interrupted band's pixels
-/// hold the slices composited so far, front to back: a usable, incomplete image).
-pub fn composite_band_until<S: SliceSource>(
+/// Defines a band compositor `$name` with the attributes given: each is [`band`]
+/// inlined, so the attributes (a `target_feature` list) decide how its loops compile.
+macro_rules! band_compositor {
+    ($(#[$attr:meta])* $name:ident) => {
+        $(#[$attr])*
+        pub fn $name<S: SliceSource>(
+            source: &mut S,
+            frame: &Frame,
+            tables: &SliceTables<'_>,
+            img: &mut Intermediate<'_>,
+            rows: &mut [Rgba],
+            shadow: Option<(&mut [u16], &mut [u16])>,
+            keep_going: &mut dyn FnMut() -> bool,
+        ) -> Result<bool, Error> {
+            band(source, frame, tables, img, rows, shadow, keep_going)
+        }
+    };
+}
+
+band_compositor! {
+    /// [`composite_band`] that asks `keep_going` before every slice and stops when it
+    /// says no: a frontend interrupts a frame that a newer view has made useless after at
+    /// most one slice of work. Returns whether the band was finished (an interrupted
+    /// band's pixels hold the slices composited so far, front to back: a usable,
+    /// incomplete image).
+    composite_band_until
+}
+
+band_compositor! {
+    /// [`composite_band_until`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT,
+    /// POPCNT): the compositing and shading loops are the same integer code, so the
+    /// image is bit-identical, but the compiler may use 256-bit vectors and 32-bit
+    /// vector multiplies (baseline x86-64, SSE2, has no 32-bit vector multiply).
+    /// `target_feature` functions are safe to define but a caller must know the CPU has
+    /// the features.
+    ///
+    /// # Safety
+    ///
+    /// The CPU must have every feature listed above; running it on one that lacks any
+    /// is undefined behaviour. Check at run time with `is_x86_feature_detected!` first
+    /// (the file frontend's `isa` module does).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt")]
+    composite_band_until_x86_v3
+}
+
+band_compositor! {
+    /// [`composite_band_until`] compiled for x86-64-v4 (v3 plus AVX-512
+    /// F/BW/VL/DQ/CD), bit-identical like [`composite_band_until_x86_v3`].
+    ///
+    /// # Safety
+    ///
+    /// As for [`composite_band_until_x86_v3`], with the AVX-512 features too.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(
+        enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd"
+    )]
+    composite_band_until_x86_v4
+}
+
+/// The body of the `composite_band_until` variants, inlined into each so that it and the
+/// loops inlined into it are compiled for that variant's instruction set.
+#[inline(always)]
+fn band<S: SliceSource>(
     source: &mut S,
     frame: &Frame,
     tables: &SliceTables<'_>,
@@ -331,30 +390,40 @@ pub fn composite_band_until<S: SliceSource>(
         match (&frame.shadow, shadow.as_mut()) {
             (Some(sf), Some((alpha, srows))) => {
                 let [w, h] = sf.size;
-                source.with_slice(view.axis, k, |slice| {
-                    let look = ShadowLookup {
-                        alpha: &alpha[..w * h],
-                        width: w,
-                        height: h,
-                        off: sf.slice_offset(k),
-                    };
-                    composite::composite_slice_in(
-                        img,
-                        slice,
-                        k,
-                        view,
-                        tables,
-                        rows,
-                        Some(&look),
-                        true,
-                    )?;
-                    shadow::accumulate_slice(alpha, slice, k, sf, srows)
-                })??;
+                source.with_slice(
+                    view.axis,
+                    k,
+                    #[cfg_attr(target_arch = "x86_64", inline(always))]
+                    |slice| {
+                        let look = ShadowLookup {
+                            alpha: &alpha[..w * h],
+                            width: w,
+                            height: h,
+                            off: sf.slice_offset(k),
+                        };
+                        composite::composite_slice_in(
+                            img,
+                            slice,
+                            k,
+                            view,
+                            tables,
+                            rows,
+                            Some(&look),
+                            true,
+                        )?;
+                        shadow::accumulate_slice(alpha, slice, k, sf, srows)
+                    },
+                )??;
             }
             _ => {
-                source.with_slice(view.axis, k, |slice| {
-                    composite::composite_slice_in(img, slice, k, view, tables, rows, None, true)
-                })??;
+                source.with_slice(
+                    view.axis,
+                    k,
+                    #[cfg_attr(target_arch = "x86_64", inline(always))]
+                    |slice| {
+                        composite::composite_slice_in(img, slice, k, view, tables, rows, None, true)
+                    },
+                )??;
             }
         }
     }

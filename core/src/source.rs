@@ -54,6 +54,9 @@ impl SliceSource for RleVolume<'_> {
         self.grid
     }
 
+    // Inlined so that the instruction-set builds of the band compositor that call it
+    // compile the compositing loop in `f` for their own features.
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn with_slice<R>(
         &mut self,
         axis: Axis,

@@ -8,6 +8,7 @@
 //!    the renderer is integer arithmetic, so any change is a real change. Goldens are
 //!    written only by `cargo run -p shearwarp-tests --bin bless`, never by this test.
 
+use shearwarp_file::isa::Isa;
 use shearwarp_tests::cases::{self, CASES};
 use shearwarp_tests::metrics;
 
@@ -86,6 +87,37 @@ fn threaded_rendering_is_bit_identical_to_single_threaded() {
             assert!(one == many, "{}: {threads} threads differ", case.name);
         }
     }
+}
+
+#[test]
+fn every_instruction_set_build_is_bit_identical_to_the_baseline() {
+    let levels: Vec<Isa> = Isa::ALL
+        .into_iter()
+        .filter(|i| *i != Isa::Baseline && i.available())
+        .collect();
+    // On a CPU without the wider builds there is nothing to compare; say so.
+    if levels.is_empty() {
+        eprintln!("only the baseline build runs on this CPU");
+        return;
+    }
+    let mut compared = 0;
+    for case in CASES {
+        let raw = cases::load(case.vol);
+        let Some(base) = cases::render_ours_isa(case, &raw, Isa::Baseline) else {
+            continue;
+        };
+        for &isa in &levels {
+            let other = cases::render_ours_isa(case, &raw, isa).expect("classic case");
+            assert!(
+                base == other,
+                "{}: {} differs from baseline",
+                case.name,
+                isa.name()
+            );
+            compared += 1;
+        }
+    }
+    assert!(compared > 0);
 }
 
 /// Opacity correction: a uniform translucent cube must not change brightness as it

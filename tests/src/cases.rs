@@ -9,6 +9,7 @@ use shearwarp_core::depth::DepthCue;
 use shearwarp_core::postclass::PostMode;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
+use shearwarp_file::isa::Isa;
 use shearwarp_file::scene::{self, Classification, Look, Renderer};
 use shearwarp_file::volume::{self, RawVolume, Voxels};
 use std::path::PathBuf;
@@ -688,7 +689,17 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         return frame.iter().map(|p| [p[0], p[1], p[2]]).collect();
     }
     let enc = scene::encode(raw, &classification(case)).expect("encode");
-    render_encoded(case, &enc, threads)
+    render_encoded(case, &enc, threads, Isa::detect())
+}
+
+/// Renders a classic (RLE) case on one thread with the `isa` build of the compositing
+/// loop; `None` for a post-classified case (it has no such builds).
+pub fn render_ours_isa(case: &Case, raw: &RawVolume, isa: Isa) -> Option<Vec<[u8; 3]>> {
+    if case.post.is_some() {
+        return None;
+    }
+    let enc = scene::encode(raw, &classification(case)).expect("encode");
+    Some(render_encoded(case, &enc, 1, isa))
 }
 
 /// The camera of a case.
@@ -711,7 +722,7 @@ fn classification(case: &Case) -> Classification {
 }
 
 /// Renders a classic (RLE) case from an encoded volume with `threads` threads.
-fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize) -> Vec<[u8; 3]> {
+fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize, isa: Isa) -> Vec<[u8; 3]> {
     let look = Look {
         mode: case.mode,
         color: scene::color_table(case.color, enc.range).expect("colour"),
@@ -722,6 +733,7 @@ fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize) -> Vec<[u8;
     };
     let cam = camera(case);
     let mut r = Renderer::with_threads(&enc.grid, threads);
+    r.set_isa(isa);
     r.set_supersample(case.supersample).expect("supersample");
     r.set_perspective(case.fov);
     let mut src = enc.volume().expect("volume");
@@ -737,7 +749,7 @@ pub fn render_level(case: &Case, raw: &RawVolume, level: usize) -> Vec<[u8; 3]> 
     let enc = scene::encode(&lod, &classification(case))
         .expect("encode")
         .as_level(&full);
-    render_encoded(case, &enc, 1)
+    render_encoded(case, &enc, 1, Isa::detect())
 }
 
 /// Renders a case with the reference ray caster.

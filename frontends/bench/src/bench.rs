@@ -4,6 +4,7 @@
 use crate::scenes::{Loaded, Scene};
 use crate::volpack::{self, VolPack};
 use shearwarp_core::view::Camera;
+use shearwarp_file::isa::Isa;
 use shearwarp_file::scene::{self, Encoded, Renderer};
 use shearwarp_tests::metrics;
 use shearwarp_tests::reference::{self, RefMode, RefView};
@@ -32,6 +33,10 @@ pub struct Options {
     pub images_dir: Option<PathBuf>,
     /// Skip VolPack even when it is built in.
     pub no_volpack: bool,
+    /// The instruction-set build of shearwarp's compositing loop.
+    pub isa: Isa,
+    /// Also time the baseline build on one thread (when `isa` is above it).
+    pub baseline: bool,
 }
 
 /// Median of a set of timings, ms.
@@ -63,7 +68,9 @@ pub struct SizeResult {
     pub size: usize,
     pub sw: Stats,
     pub sw_threads: Option<Stats>,
-    /// The threaded images equal the single-threaded ones.
+    /// The baseline (SSE2) build on one thread, when the main runs use a wider one.
+    pub sw_base: Option<Stats>,
+    /// The threaded and baseline-build images equal the single-threaded ones.
     pub threads_identical: Option<bool>,
     pub vp: Option<Stats>,
     pub psnr_sw: Option<f64>,
@@ -249,13 +256,22 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
     };
     let mut src = enc.volume()?;
     for &size in &opts.sizes {
-        let mut r1 = Renderer::with_threads(&enc.grid, 1);
-        let mut rn = opts.threads.map(|n| Renderer::with_threads(&enc.grid, n));
+        let renderer = |threads: usize, isa: Isa| {
+            let mut r = Renderer::with_threads(&enc.grid, threads);
+            r.set_isa(isa);
+            r
+        };
+        let mut r1 = renderer(1, opts.isa);
+        let mut rn = opts.threads.map(|n| renderer(n, opts.isa));
+        let mut rb =
+            (opts.baseline && r1.isa() > Isa::Baseline).then(|| renderer(1, Isa::Baseline));
+        let mut imgb = Vec::new();
         let mut vp_img = vec![0u8; size * size * 3];
         let (mut img1, mut imgn) = (Vec::new(), Vec::new());
         // Per view, the best time over the rounds.
         let n = opts.frames;
         let (mut t1, mut tn, mut tv) = (vec![f64::MAX; n], vec![f64::MAX; n], vec![f64::MAX; n]);
+        let mut tb = vec![f64::MAX; n];
         let mut identical = true;
         // Frame 0 once untimed (allocations, page faults), then the timed frames, `rounds`
         // times over. The renderers take turns frame by frame so that load from other
@@ -276,6 +292,13 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
                 msn = t.elapsed().as_secs_f64() * 1e3;
                 identical &= imgn == img1;
             }
+            let mut msb = f64::MAX;
+            if let Some(r) = rb.as_mut() {
+                let t = Instant::now();
+                r.render_into(&mut src, &cam, &look, &mut imgb)?;
+                msb = t.elapsed().as_secs_f64() * 1e3;
+                identical &= imgb == img1;
+            }
             let mut msv = f64::MAX;
             if let Some(v) = vp.as_mut() {
                 msv = v.render(view.0, view.1, size, size, &mut vp_img)?;
@@ -283,6 +306,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             if slot < n {
                 t1[slot] = t1[slot].min(ms1);
                 tn[slot] = tn[slot].min(msn);
+                tb[slot] = tb[slot].min(msb);
                 tv[slot] = tv[slot].min(msv);
             }
         }
@@ -290,7 +314,8 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             size,
             sw: Stats::of(&t1),
             sw_threads: rn.as_ref().map(|_| Stats::of(&tn)),
-            threads_identical: rn.as_ref().map(|_| identical),
+            sw_base: rb.as_ref().map(|_| Stats::of(&tb)),
+            threads_identical: (rn.is_some() || rb.is_some()).then_some(identical),
             vp: vp.as_ref().map(|_| Stats::of(&tv)),
             psnr_sw: None,
             psnr_vp: None,
@@ -336,10 +361,13 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             }
         }
         eprintln!(
-            "  {size}x{size}: shearwarp {:.2} ms{}{}",
+            "  {size}x{size}: shearwarp {:.2} ms{}{}{}",
             sr.sw.median,
             sr.sw_threads
                 .map(|s| format!(", {} threads {:.2} ms", opts.threads.unwrap_or(1), s.median))
+                .unwrap_or_default(),
+            sr.sw_base
+                .map(|s| format!(", baseline build {:.2} ms", s.median))
                 .unwrap_or_default(),
             sr.vp
                 .map(|s| format!(", VolPack {:.2} ms", s.median))

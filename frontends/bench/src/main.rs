@@ -13,6 +13,7 @@ mod volpack;
 
 use bench::{Options, SceneResult};
 use clap::Parser;
+use shearwarp_file::isa::Isa;
 use std::error::Error;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -82,6 +83,24 @@ struct Cli {
     /// Cache of reference images (default: target/bench-cache in the repository).
     #[arg(long)]
     cache: Option<PathBuf>,
+    /// Instruction-set build of shearwarp's compositing loop: baseline, x86-64-v3 or
+    /// x86-64-v4 (default: the highest this CPU runs; a level it lacks runs the highest
+    /// one below).
+    #[arg(long, value_parser = parse_isa)]
+    isa: Option<Isa>,
+    /// Do not also time the baseline build when a wider one is in use.
+    #[arg(long)]
+    no_baseline: bool,
+}
+
+fn parse_isa(s: &str) -> Result<Isa, String> {
+    Isa::parse(s).ok_or_else(|| {
+        let names: Vec<&str> = Isa::ALL.iter().map(|i| i.name()).collect();
+        format!(
+            "unknown instruction-set level {s:?} (one of {})",
+            names.join(", ")
+        )
+    })
 }
 
 fn repo_root() -> PathBuf {
@@ -268,6 +287,12 @@ fn plot_series(scaling: &[SceneResult], threads: usize) -> Vec<plot::Series> {
             marker,
             points: pts(&|s| Some(s.sw.median)),
         });
+        out.push(plot::Series {
+            label: format!("shearwarp 1 thread, SSE2 build, {size}×{size}"),
+            color: shade((110, 60, 160)),
+            marker,
+            points: pts(&|s| s.sw_base.map(|t| t.median)),
+        });
         if threads > 1 {
             out.push(plot::Series {
                 label: format!("shearwarp {threads} threads, {size}×{size}"),
@@ -314,6 +339,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         cache_dir: cache,
         images_dir: cli.images.clone(),
         no_volpack: cli.no_volpack,
+        isa: cli.isa.unwrap_or_else(Isa::detect),
+        baseline: !cli.no_baseline,
     };
     let mut list = scenes::main_scenes(&data_dir(&cli), &cli.den);
     if let Some(only) = &cli.scenes {
@@ -367,7 +394,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         for s in &r.sizes {
             if s.threads_identical == Some(false) {
                 println!(
-                    "WARNING: {} at {}: threaded image differs from single-threaded",
+                    "WARNING: {} at {}: threaded or baseline-build image differs from \
+                     single-threaded",
                     r.name, s.size
                 );
             }
@@ -400,6 +428,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             args.join(" ")
         );
         let _ = writeln!(block, "Machine:\n\n{}", machine());
+        let _ = writeln!(
+            block,
+            "shearwarp's compositing loop ran its {} build (chosen at run time from the \
+             CPU's features; every build gives the same image, checked frame by frame \
+             here); the `SSE2` columns time the baseline x86-64 build of the same code, \
+             which is what Debian compiles VolPack for.\n",
+            opts.isa.name()
+        );
         let _ = writeln!(
             block,
             "### Scenes\n\nms/frame: median over {} views of each view's best of {} rounds; \

@@ -33,6 +33,8 @@ fn headers(threads: Option<usize>) -> Vec<String> {
         format!("{t}T speed-up"),
         "VP ms/frame".into(),
         "sw/VP".into(),
+        "sw SSE2 ms/frame".into(),
+        "SSE2/VP".into(),
         "PSNR sw dB".into(),
         "PSNR VP dB".into(),
     ]
@@ -55,6 +57,12 @@ fn rows(results: &[SceneResult]) -> Vec<Vec<String>> {
                 opt(t.and_then(|t| ratio(s.sw.median, Some(t))), 2),
                 opt(s.vp.map(|v| v.median), 2),
                 opt(ratio(s.sw.median, s.vp.map(|v| v.median)), 2),
+                opt(s.sw_base.map(|b| b.median), 2),
+                opt(
+                    s.sw_base
+                        .and_then(|b| ratio(b.median, s.vp.map(|v| v.median))),
+                    2,
+                ),
                 opt(s.psnr_sw, 1),
                 opt(s.psnr_vp, 1),
             ]);
@@ -147,6 +155,7 @@ mod tests {
                 size: 256,
                 sw: Stats { median: 1.0 },
                 sw_threads: Some(Stats { median: 0.5 }),
+                sw_base: Some(Stats { median: 2.0 }),
                 threads_identical: Some(true),
                 vp: Some(Stats { median: 4.0 }),
                 psnr_sw: Some(40.0),
@@ -162,7 +171,7 @@ mod tests {
         assert!(t.contains("2.00"), "{t}");
         let m = markdown_table(&sample());
         assert_eq!(m.lines().count(), 3);
-        assert!(m.contains("| s (2×3×4) | 256×256 | 10.0 | 40.0 | 0.25 | 1.00 | 0.50 | 2.00 | 4.00 | 0.25 | 40.0 | – |"), "{m}");
+        assert!(m.contains("| s (2×3×4) | 256×256 | 10.0 | 40.0 | 0.25 | 1.00 | 0.50 | 2.00 | 4.00 | 0.25 | 2.00 | 0.50 | 40.0 | – |"), "{m}");
     }
 
     #[test]

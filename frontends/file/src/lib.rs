@@ -5,6 +5,7 @@
 pub mod anim;
 pub mod formats;
 pub mod info;
+pub mod isa;
 pub mod presets;
 pub mod scene;
 pub mod tffile;

@@ -7,7 +7,7 @@ use shearwarp_core::classify::{
 };
 use shearwarp_core::composite::{self, Intermediate, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
-use shearwarp_core::render::{self, Frame, Settings};
+use shearwarp_core::render::{Frame, Settings};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Lighting, ShadeTable};
 use shearwarp_core::shadow;
@@ -16,6 +16,8 @@ use shearwarp_core::view::{self, Camera, Factorization};
 use shearwarp_core::warp::FrameBuffer;
 use shearwarp_core::Error;
 use shearwarp_core::{io, postclass, swv, warp};
+
+use crate::isa::{self, Isa};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
@@ -504,6 +506,8 @@ pub struct Renderer {
     /// here, twice a frame; waking a parked worker took 2 µs right after its last job
     /// and 40–60 µs after a millisecond asleep.
     pool: Option<rayon::ThreadPool>,
+    /// The instruction-set build of the compositing loop ([`Isa::detect`] by default).
+    isa: Isa,
 }
 
 impl Renderer {
@@ -544,7 +548,23 @@ impl Renderer {
             supersample: 1,
             fov: None,
             pool,
+            isa: Isa::detect(),
         }
+    }
+
+    /// Composites with the `isa` build of the core's loop (a level this CPU lacks runs
+    /// the highest one below it); every level gives the same image.
+    pub fn set_isa(&mut self, isa: Isa) {
+        self.isa = isa;
+    }
+
+    /// The instruction-set level compositing runs at.
+    pub fn isa(&self) -> Isa {
+        Isa::ALL
+            .into_iter()
+            .rev()
+            .find(|i| *i <= self.isa && i.available())
+            .unwrap_or(Isa::Baseline)
     }
 
     /// Composites at `s` intermediate pixels per voxel (1..=4; see
@@ -675,7 +695,8 @@ impl Renderer {
                 let mut img =
                     Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
                 let rows = &mut self.rows[0];
-                let done = render::composite_band_until(
+                let done = isa::composite_band_until(
+                    self.isa,
                     source,
                     &frame,
                     &tables,
@@ -697,6 +718,7 @@ impl Renderer {
             opaque: &mut self.links[..shearwarp_core::opaque::words(iw) * ih],
         });
         let stopped = AtomicBool::new(false);
+        let isa = self.isa;
         // One worker per row buffer, each with its own handle on the source.
         let work = |(rows, mut src): (&mut Vec<Rgba>, S)| -> Result<(), Error> {
             loop {
@@ -709,8 +731,8 @@ impl Renderer {
                 };
                 let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
                 let go = &mut || keep_going();
-                if !render::composite_band_until(
-                    &mut src, &frame, &tables, &mut img, rows, None, go,
+                if !isa::composite_band_until(
+                    isa, &mut src, &frame, &tables, &mut img, rows, None, go,
                 )? {
                     stopped.store(true, Ordering::Relaxed);
                     return Ok(());
