@@ -869,9 +869,15 @@ fn over_span(
         );
         // A pixel still at zero opacity was never composited, so it is not marked even
         // when the threshold is zero (as in the per-pixel kernel).
-        for (i, p) in px.iter().enumerate() {
-            if p[3] as u32 >= ert.max(1) {
-                opaque::mark(opaque, u + i);
+        // 64 pixels at a time: a mask of the closed ones, then one OR into the bitmap.
+        let thr = ert.max(1);
+        for (c, chunk) in px.chunks(64).enumerate() {
+            let mut m = 0u64;
+            for (i, p) in chunk.iter().enumerate() {
+                m |= ((p[3] as u32 >= thr) as u64) << i;
+            }
+            if m != 0 {
+                opaque::mark_bits(opaque, u + 64 * c, m);
             }
         }
         u = opaque::next_open(opaque, width, e, end);

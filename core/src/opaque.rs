@@ -87,6 +87,19 @@ pub(crate) fn is_opaque(line: &[u16], u: usize) -> bool {
         .is_some_and(|&w| w >> (u % BITS) & 1 != 0)
 }
 
+/// Marks pixels `start + t` opaque for the bits `t` set in `m` (bits past the stored
+/// words are dropped).
+#[inline(always)]
+pub(crate) fn mark_bits(line: &mut [u16], start: usize, m: u64) {
+    let w = start / BITS;
+    let v = (m as u128) << (start % BITS);
+    for k in 0..5 {
+        if let Some(x) = line.get_mut(w + k) {
+            *x |= (v >> (BITS * k)) as u16;
+        }
+    }
+}
+
 /// Marks pixel `u` opaque.
 #[inline(always)]
 pub(crate) fn mark(line: &mut [u16], u: usize) {
@@ -157,6 +170,24 @@ mod tests {
             let u = start + 64;
             let open = u >= 0 && (u as usize) < width && !opq.contains(&(u as usize));
             assert_eq!(next, !open, "start {start}: pixel {u}");
+        }
+    }
+
+    #[test]
+    fn mark_bits_marks_exactly_the_pixels_of_its_mask() {
+        let width = 150;
+        let mut rng = crate::xorshift(0x5eed);
+        for start in 0..width + 20 {
+            let m = rng();
+            let mut a = line(width, &[]);
+            let mut b = line(width, &[]);
+            mark_bits(&mut a, start, m);
+            for t in 0..64 {
+                if m >> t & 1 != 0 {
+                    mark(&mut b, start + t);
+                }
+            }
+            assert_eq!(a, b, "start {start} mask {m:#x}");
         }
     }
 
