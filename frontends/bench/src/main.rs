@@ -86,21 +86,11 @@ struct Cli {
     /// Instruction-set build of shearwarp's compositing loop: baseline, x86-64-v3 or
     /// x86-64-v4 (default: the highest this CPU runs; a level it lacks runs the highest
     /// one below).
-    #[arg(long, value_parser = parse_isa)]
+    #[arg(long)]
     isa: Option<Isa>,
     /// Do not also time the baseline build when a wider one is in use.
     #[arg(long)]
     no_baseline: bool,
-}
-
-fn parse_isa(s: &str) -> Result<Isa, String> {
-    Isa::parse(s).ok_or_else(|| {
-        let names: Vec<&str> = Isa::ALL.iter().map(|i| i.name()).collect();
-        format!(
-            "unknown instruction-set level {s:?} (one of {})",
-            names.join(", ")
-        )
-    })
 }
 
 fn repo_root() -> PathBuf {

@@ -65,6 +65,20 @@ impl Isa {
     }
 }
 
+impl std::str::FromStr for Isa {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Isa, String> {
+        Isa::parse(s).ok_or_else(|| {
+            let names: Vec<&str> = Isa::ALL.iter().map(|i| i.name()).collect();
+            format!(
+                "unknown instruction-set level {s:?} (one of {})",
+                names.join(", ")
+            )
+        })
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 fn v3() -> bool {
     std::is_x86_feature_detected!("avx2")

@@ -7,6 +7,7 @@ use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
 use shearwarp_core::{postclass, swv};
 use shearwarp_file::anim;
+use shearwarp_file::isa::Isa;
 use shearwarp_file::presets;
 use shearwarp_file::scene::{self, Classification, Encoded, Look, Renderer};
 use shearwarp_file::tffile::{Resolved, TfFileError, TfSpec};
@@ -234,6 +235,10 @@ struct RenderOpts {
     /// Compositing threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Instruction-set build of the compositing loop: baseline, x86-64-v3 or x86-64-v4
+    /// (default: the highest this CPU runs; every level gives the same image).
+    #[arg(long)]
+    isa: Option<Isa>,
     /// Prefer the 16-bit file when the sidecar lists one.
     #[arg(long)]
     u16: bool,
@@ -825,6 +830,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let p = prepare(&volume, &opts, out)?;
                 let src = p.encoded.volume()?;
                 let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
+                r.set_isa(opts.isa.unwrap_or_else(Isa::detect));
                 r.set_supersample(opts.supersample)?;
                 r.set_perspective(opts.perspective()?);
                 let r = std::cell::RefCell::new(r);
@@ -1032,6 +1038,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let preprocess = t0.elapsed().as_secs_f64() * 1e3;
             let mut src = p.encoded.volume()?;
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
+            r.set_isa(opts.isa.unwrap_or_else(Isa::detect));
             r.set_supersample(opts.supersample)?;
             r.set_perspective(opts.perspective()?);
             let times = time_turntable(frames, p.camera, out, |_, cam| {
@@ -1049,6 +1056,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                         "dims_xyz": p.dims,
                         "image": [p.camera.width, p.camera.height],
                         "threads": p.threads,
+                        "isa": r.isa().name(),
                         "visible_voxels": p.encoded.visible_voxels(),
                         "rle_bytes": p.encoded.bytes(),
                         "frames": frames,
@@ -1059,7 +1067,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 );
             } else {
                 out.text(format_args!(
-                    "volume={} dims={}x{}x{} image={}x{} threads={} visible_voxels={} rle_bytes={}",
+                    "volume={} dims={}x{}x{} image={}x{} threads={} isa={} visible_voxels={} rle_bytes={}",
                     p.name,
                     p.dims[0],
                     p.dims[1],
@@ -1067,6 +1075,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     p.camera.width,
                     p.camera.height,
                     p.threads,
+                    r.isa().name(),
                     p.encoded.visible_voxels(),
                     p.encoded.bytes()
                 ));

@@ -76,6 +76,21 @@ fn render(args: &[&str], out: &str) -> Vec<u8> {
 }
 
 #[test]
+fn every_isa_level_renders_the_same_png() {
+    let t = Tmp::new("isa");
+    let args = |isa: &'static str| [head64(), "--shading".into(), "--isa".into(), isa.into()];
+    let base = args("baseline");
+    let base: Vec<&str> = base.iter().map(String::as_str).collect();
+    let want = render(&base, &t.p("base.png"));
+    // A level the CPU lacks falls back to the highest one it has, so both always run.
+    for isa in ["x86-64-v3", "x86-64-v4"] {
+        let a = args(isa);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        assert!(render(&a, &t.p(&format!("{isa}.png"))) == want, "{isa}");
+    }
+}
+
+#[test]
 fn a_saved_tf_file_renders_like_the_same_options() {
     let t = Tmp::new("tf");
     let spec = TfSpec {
@@ -416,6 +431,10 @@ fn bad_inputs_exit_2_with_one_line() {
     cases.push((
         s(&["info", &head64(), "--max-voxels", "100000"]),
         "mr_head_colin27_64.json: unusable dims_xyz".into(),
+    ));
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--isa", "x86-64-v9"]),
+        "unknown instruction-set level \"x86-64-v9\"".into(),
     ));
     // Unknown preset; a CT preset on data without HU.
     cases.push((
