@@ -3,6 +3,7 @@
 //! encoding, rendering to PNG.
 
 pub mod anim;
+pub mod bigbuf;
 pub mod formats;
 pub mod info;
 pub mod isa;

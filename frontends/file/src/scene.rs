@@ -17,6 +17,7 @@ use shearwarp_core::warp::FrameBuffer;
 use shearwarp_core::Error;
 use shearwarp_core::{io, postclass, swv, warp};
 
+use crate::bigbuf;
 use crate::isa::{self, Isa};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
@@ -82,7 +83,7 @@ pub fn encode_threads(
         });
     }
     let threshold = (class.min_opacity * 255.0).floor() as u8;
-    let mut dense = vec![Voxel::default(); grid.voxel_count()];
+    let mut dense = bigbuf::filled(grid.voxel_count(), Voxel::default());
     // Only the encoded (visible) voxels need a normal.
     let (t, g) = (Some(threshold), gtable.as_ref());
     classify::classify_above(&grid, scalars, &table, g, t, &mut dense)?;
@@ -142,9 +143,9 @@ pub fn encode_axis(
     visible: usize,
 ) -> Result<AxisArrays, Error> {
     let [ni, nj, nk] = axis.permuted_dims(grid.dims);
-    let mut runs = vec![0u8; nj * nk * (ni + 2)];
-    let mut voxels = vec![Voxel::default(); visible];
-    let mut scans = vec![ScanIndex::default(); nj * nk + 1];
+    let mut runs = bigbuf::zeroed_bytes(nj * nk * (ni + 2));
+    let mut voxels = bigbuf::filled(visible, Voxel::default());
+    let mut scans = bigbuf::filled(nj * nk + 1, ScanIndex::default());
     let used = encode_slabs(
         dense,
         grid,
@@ -206,7 +207,7 @@ pub fn encode_slabs(
             Axis::X => (X_SLAB, plane + LINE),
             _ => (1, plane),
         };
-        let mut slab = vec![Voxel::default(); group * pitch];
+        let mut slab = bigbuf::filled(group * pitch, Voxel::default());
         for k0 in (0..nk).step_by(group) {
             let g = group.min(nk - k0);
             if axis == Axis::X {
