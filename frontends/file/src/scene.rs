@@ -643,6 +643,18 @@ impl Renderer {
         look: &Look,
         keep_going: &(dyn Fn() -> bool + Sync),
     ) -> Result<Option<Frame>, Error> {
+        // A parked worker takes 0.06–0.17 ms to start a job here, which the calling
+        // thread would spend compositing alone. Waking it now, with an empty job, lets
+        // that overlap the frame's serial setup (factorization, shading table). Measured
+        // inside the renderer (means of 200 two-thread frames, two alternating runs at
+        // 256²), the worker then started 0.04 ms after the bands were posted instead of
+        // 0.06–0.12 ms, and the compositing phase took 0.87–0.92 ms instead of
+        // 0.95–0.98 ms on brainsmall, 3.86–4.11 ms instead of 4.45–4.61 ms on the head.
+        if let Some(pool) = &self.pool {
+            if !look.shadows {
+                pool.spawn(|| {});
+            }
+        }
         let settings = Settings {
             mode: look.mode,
             color: &look.color,
