@@ -537,6 +537,7 @@ impl Iterator for MergedSpans<'_> {
 /// of a frame on the MR head, which otherwise waits on those reads). Bare-metal targets
 /// have no data cache to fill, so there it does nothing.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
+#[cfg_attr(not(target_arch = "x86_64"), inline)]
 fn touch(voxels: &[Voxel]) {
     if cfg!(target_os = "none") {
         return;
@@ -822,6 +823,7 @@ struct Taps<'r> {
 
 /// The inner loop: pixels `us` of one scanline.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
+#[cfg_attr(not(target_arch = "x86_64"), inline)]
 fn composite_span(
     pixels: &mut [Rgba],
     opaque: &mut [u16],
@@ -845,6 +847,7 @@ fn composite_span(
 /// and the pixels that reached the early-ray-termination opacity are marked opaque
 /// afterwards. Bit-identical to [`composite_pixel`], which the tests check.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
+#[cfg_attr(not(target_arch = "x86_64"), inline)]
 fn over_span(
     pixels: &mut [Rgba],
     opaque: &mut [u16],
@@ -869,18 +872,48 @@ fn over_span(
         );
         // A pixel still at zero opacity was never composited, so it is not marked even
         // when the threshold is zero (as in the per-pixel kernel).
-        // 64 pixels at a time: a mask of the closed ones, then one OR into the bitmap.
-        let thr = ert.max(1);
-        for (c, chunk) in px.chunks(64).enumerate() {
-            let mut m = 0u64;
-            for (i, p) in chunk.iter().enumerate() {
-                m |= ((p[3] as u32 >= thr) as u64) << i;
-            }
-            if m != 0 {
-                opaque::mark_bits(opaque, u + 64 * c, m);
-            }
-        }
+        mark_closed(opaque, u, px, ert.max(1));
         u = opaque::next_open(opaque, width, e, end);
+    }
+}
+
+/// Marks opaque the pixels of `px` (pixel `u` first) whose opacity reached `thr`.
+///
+/// With 64-bit words a mask of 64 pixels is built and ORed into the bitmap at once
+/// (spheres256, x86-64-v3: 2 % fewer instructions per frame than a test and bit-set per
+/// pixel). On 32-bit targets the 64-bit shifts cost more than they save (the Cortex-M3
+/// firmware: 42 565 200 instructions per frame against 40 838 680), so they mark pixel
+/// by pixel.
+#[inline(always)]
+fn mark_closed(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+    if cfg!(target_pointer_width = "64") {
+        mark_closed_words(opaque, u, px, thr);
+    } else {
+        mark_closed_each(opaque, u, px, thr);
+    }
+}
+
+/// [`mark_closed`] 64 pixels at a time.
+#[inline(always)]
+fn mark_closed_words(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+    for (c, chunk) in px.chunks(64).enumerate() {
+        let mut m = 0u64;
+        for (i, p) in chunk.iter().enumerate() {
+            m |= ((p[3] as u32 >= thr) as u64) << i;
+        }
+        if m != 0 {
+            opaque::mark_bits(opaque, u + 64 * c, m);
+        }
+    }
+}
+
+/// [`mark_closed`] pixel by pixel.
+#[inline(always)]
+fn mark_closed_each(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+    for (i, p) in px.iter().enumerate() {
+        if p[3] as u32 >= thr {
+            opaque::mark(opaque, u + i);
+        }
     }
 }
 
@@ -888,6 +921,7 @@ fn over_span(
 /// the result under `px`. A zero sample leaves a pixel unchanged (`p + 0·(1 − α) = p`),
 /// so no pixel needs a test and the loop has no branches.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
+#[cfg_attr(not(target_arch = "x86_64"), inline)]
 fn over_run(px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) {
     const H: u32 = 1 << 14;
     let w = w.map(|x| x as u16 as u32);
@@ -1088,6 +1122,26 @@ mod tests {
                 .iter()
                 .chain(&lazy.buf[hi..])
                 .all(|p| *p == [0; 4]));
+        }
+    }
+
+    #[test]
+    fn both_ways_of_marking_closed_pixels_agree() {
+        let mut rng = crate::xorshift(0xc105ed);
+        for case in 0..400 {
+            let width = 1 + (rng() % 300) as usize;
+            let u = (rng() % width as u64) as usize;
+            let n = (rng() % (width - u) as u64) as usize + 1;
+            let px: heapless::Vec<Rgba, 300> = (0..n)
+                .map(|_| [0, 0, 0, (rng() % (ONE as u64 + 1)) as u16])
+                .collect();
+            let thr = 1 + (rng() % ONE as u64) as u32;
+            let mut a = [0u16; 19];
+            a.iter_mut().for_each(|w| *w = rng() as u16 & rng() as u16);
+            let mut b = a;
+            mark_closed_words(&mut a[..opaque::words(width)], u, &px, thr);
+            mark_closed_each(&mut b[..opaque::words(width)], u, &px, thr);
+            assert_eq!(a, b, "case {case}");
         }
     }
 

@@ -110,6 +110,7 @@ pub(crate) fn mark(line: &mut [u16], u: usize) {
 
 /// The first open pixel in `u..end` of a `width`-pixel scanline, or `end` if none.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
+#[cfg_attr(not(target_arch = "x86_64"), inline)]
 pub(crate) fn next_open(line: &[u16], width: usize, mut u: usize, end: usize) -> usize {
     while u < end {
         let w = open_bits(line, width, u as i64);
@@ -123,6 +124,7 @@ pub(crate) fn next_open(line: &[u16], width: usize, mut u: usize, end: usize) ->
 
 /// The end of the run of open pixels that starts at the open pixel `u`, at most `end`.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
+#[cfg_attr(not(target_arch = "x86_64"), inline)]
 pub(crate) fn open_run_end(line: &[u16], width: usize, mut u: usize, end: usize) -> usize {
     while u < end {
         let w = open_bits(line, width, u as i64);

@@ -346,7 +346,7 @@ band_compositor! {
 
 /// The body of the `composite_band_until` variants, inlined into each so that it and the
 /// loops inlined into it are compiled for that variant's instruction set.
-#[inline(always)]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn band<S: SliceSource>(
     source: &mut S,
     frame: &Frame,
