@@ -884,16 +884,21 @@ fn over_span(
 /// pixel). On 32-bit targets the 64-bit shifts cost more than they save (the Cortex-M3
 /// firmware: 42 565 200 instructions per frame against 40 838 680), so they mark pixel
 /// by pixel.
+#[cfg(target_pointer_width = "64")]
 #[inline(always)]
 fn mark_closed(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
-    if cfg!(target_pointer_width = "64") {
-        mark_closed_words(opaque, u, px, thr);
-    } else {
-        mark_closed_each(opaque, u, px, thr);
-    }
+    mark_closed_words(opaque, u, px, thr);
+}
+
+/// [`mark_closed`] on 32-bit targets.
+#[cfg(not(target_pointer_width = "64"))]
+#[inline(always)]
+fn mark_closed(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+    mark_closed_each(opaque, u, px, thr);
 }
 
 /// [`mark_closed`] 64 pixels at a time.
+#[cfg_attr(not(any(test, target_pointer_width = "64")), allow(dead_code))]
 #[inline(always)]
 fn mark_closed_words(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
     for (c, chunk) in px.chunks(64).enumerate() {
@@ -908,6 +913,7 @@ fn mark_closed_words(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
 }
 
 /// [`mark_closed`] pixel by pixel.
+#[cfg_attr(all(not(test), target_pointer_width = "64"), allow(dead_code))]
 #[inline(always)]
 fn mark_closed_each(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
     for (i, p) in px.iter().enumerate() {
