@@ -29,10 +29,16 @@ impl Isa {
 
     /// The highest level this CPU runs.
     pub fn detect() -> Isa {
+        Isa::X86V4.effective()
+    }
+
+    /// The level that runs when this one is asked for: the highest level at or below it
+    /// that this CPU has.
+    pub fn effective(self) -> Isa {
         Isa::ALL
             .into_iter()
             .rev()
-            .find(|i| i.available())
+            .find(|i| *i <= self && i.available())
             .unwrap_or(Isa::Baseline)
     }
 
@@ -111,25 +117,21 @@ pub fn composite_band_until<S: SliceSource>(
     shadow: Option<(&mut [u16], &mut [u16])>,
     keep_going: &mut dyn FnMut() -> bool,
 ) -> Result<bool, Error> {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if isa >= Isa::X86V4 && Isa::X86V4.available() {
-            // SAFETY: the CPU has every feature the v4 build enables (checked just above).
-            return unsafe {
-                render::composite_band_until_x86_v4(
-                    source, frame, tables, img, rows, shadow, keep_going,
-                )
-            };
-        }
-        if isa >= Isa::X86V3 && Isa::X86V3.available() {
-            // SAFETY: the CPU has every feature the v3 build enables (checked just above).
-            return unsafe {
-                render::composite_band_until_x86_v3(
-                    source, frame, tables, img, rows, shadow, keep_going,
-                )
-            };
-        }
+    match isa.effective() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `effective` returns only levels whose features this CPU has.
+        Isa::X86V4 => unsafe {
+            render::composite_band_until_x86_v4(
+                source, frame, tables, img, rows, shadow, keep_going,
+            )
+        },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        Isa::X86V3 => unsafe {
+            render::composite_band_until_x86_v3(
+                source, frame, tables, img, rows, shadow, keep_going,
+            )
+        },
+        _ => render::composite_band_until(source, frame, tables, img, rows, shadow, keep_going),
     }
-    let _ = isa;
-    render::composite_band_until(source, frame, tables, img, rows, shadow, keep_going)
 }

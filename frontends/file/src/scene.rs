@@ -561,11 +561,7 @@ impl Renderer {
 
     /// The instruction-set level compositing runs at.
     pub fn isa(&self) -> Isa {
-        Isa::ALL
-            .into_iter()
-            .rev()
-            .find(|i| *i <= self.isa && i.available())
-            .unwrap_or(Isa::Baseline)
+        self.isa.effective()
     }
 
     /// Composites at `s` intermediate pixels per voxel (1..=4; see
