@@ -281,24 +281,23 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         for (slot, f) in warmup.chain(timed) {
             let view = frame_view(f, n);
             let cam = camera(view, size);
-            // Both renderers write into buffers kept across frames, as VolPack does.
-            let t = Instant::now();
-            r1.render_into(&mut src, &cam, &look, &mut img1)?;
-            let ms1 = t.elapsed().as_secs_f64() * 1e3;
-            let mut msn = f64::MAX;
-            if let Some(r) = rn.as_mut() {
+            // Every renderer writes into buffers kept across frames, as VolPack does.
+            let mut render_ms = |r: &mut Renderer, img: &mut Vec<[u8; 4]>| {
                 let t = Instant::now();
-                r.render_into(&mut src, &cam, &look, &mut imgn)?;
-                msn = t.elapsed().as_secs_f64() * 1e3;
-                identical &= imgn == img1;
-            }
-            let mut msb = f64::MAX;
-            if let Some(r) = rb.as_mut() {
-                let t = Instant::now();
-                r.render_into(&mut src, &cam, &look, &mut imgb)?;
-                msb = t.elapsed().as_secs_f64() * 1e3;
-                identical &= imgb == img1;
-            }
+                r.render_into(&mut src, &cam, &look, img)
+                    .map(|()| t.elapsed().as_secs_f64() * 1e3)
+            };
+            let ms1 = render_ms(&mut r1, &mut img1)?;
+            // The threaded and the baseline-build renderer, when present; each image
+            // must equal the first renderer's.
+            let mut checked = |r: Option<&mut Renderer>, img: &mut Vec<[u8; 4]>| {
+                let Some(r) = r else { return Ok(f64::MAX) };
+                let ms = render_ms(r, img)?;
+                identical &= *img == img1;
+                Ok::<f64, shearwarp_core::Error>(ms)
+            };
+            let msn = checked(rn.as_mut(), &mut imgn)?;
+            let msb = checked(rb.as_mut(), &mut imgb)?;
             let mut msv = f64::MAX;
             if let Some(v) = vp.as_mut() {
                 msv = v.render(view.0, view.1, size, size, &mut vp_img)?;
