@@ -364,7 +364,12 @@ impl<'a> Needed<'a> {
         let Some((first, last)) = visible_extent(runs, ni) else {
             return true;
         };
-        self.masks(first, last).all(|(_, m)| m == 0)
+        // Voxels first..last feed pixels first + shift ..= last + shift.
+        let (a, b) = (first as i64 + self.shift, last as i64 + self.shift + 1);
+        self.lines
+            .into_iter()
+            .flatten()
+            .all(|l| opaque::all_closed(l, self.width, a, b))
     }
 
     /// The voxels of positions `a..b` that an open pixel reads, 64 at a time: `(x, m)`

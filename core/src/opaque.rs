@@ -39,9 +39,20 @@ pub(crate) const fn ones(n: usize) -> u64 {
 fn opaque_window(line: &[u16], start: usize) -> (u64, bool) {
     let w = start / BITS;
     let o = start % BITS;
-    let word = |k: usize| line.get(w + k).map_or(0, |&x| x as u64);
-    let lo = word(0) | word(1) << 16 | word(2) << 32 | word(3) << 48;
-    let top = word(4);
+    // One bounds check for the five words in the common case, one per word at the end.
+    let (lo, top) = match line.get(w..w + 5) {
+        Some(&[a, b, c, d, e]) => (
+            a as u64 | (b as u64) << 16 | (c as u64) << 32 | (d as u64) << 48,
+            e as u64,
+        ),
+        _ => {
+            let word = |k: usize| line.get(w + k).map_or(0, |&x| x as u64);
+            (
+                word(0) | word(1) << 16 | word(2) << 32 | word(3) << 48,
+                word(4),
+            )
+        }
+    };
     let win = if o == 0 {
         lo
     } else {
@@ -71,6 +82,32 @@ pub(crate) fn closed65(line: &[u16], width: usize, start: i64) -> (u64, bool) {
     };
     let valid = ones(hi) & !ones(lo);
     (win | !valid, next || !(lo <= 64 && hi > 64))
+}
+
+/// True if every pixel of `a..b` that lies in `0..width` is opaque (pixels outside the
+/// scanline count as closed, pixels past the stored words as open). Whole words are
+/// compared at once, so a hidden-row test costs a word per 16 pixels instead of a
+/// 65-pixel window per 64 voxels.
+#[inline(always)]
+pub(crate) fn all_closed(line: &[u16], width: usize, a: i64, b: i64) -> bool {
+    let a = a.clamp(0, width as i64) as usize;
+    let b = b.clamp(0, width as i64) as usize;
+    if a >= b {
+        return true;
+    }
+    let (wa, wb) = (a / BITS, (b - 1) / BITS);
+    let Some(words) = line.get(wa..=wb) else {
+        return false;
+    };
+    let head = u16::MAX << (a % BITS);
+    let tail = u16::MAX >> (BITS - 1 - (b - 1) % BITS);
+    match words {
+        [w] => w & head & tail == head & tail,
+        [first, mid @ .., last] => {
+            first & head == head && last & tail == tail && mid.iter().all(|&w| w == u16::MAX)
+        }
+        [] => true,
+    }
 }
 
 /// Bit `t` set if pixel `start + t` lies in `0..width` and is open (not opaque), for `t`
@@ -173,6 +210,27 @@ mod tests {
             let open = u >= 0 && (u as usize) < width && !opq.contains(&(u as usize));
             assert_eq!(next, !open, "start {start}: pixel {u}");
         }
+    }
+
+    #[test]
+    fn all_closed_matches_the_per_pixel_definition() {
+        let width = 150;
+        let mut opq: heapless::Vec<usize, 150> = (0..width).collect();
+        for hole in [None, Some(0), Some(15), Some(16), Some(70), Some(149)] {
+            if let Some(h) = hole {
+                opq = (0..width).filter(|&u| u != h).collect();
+            }
+            let l = line(width, &opq);
+            for a in -20i64..170 {
+                for b in a - 1..a + 90 {
+                    let want = (a.max(0)..b.min(width as i64)).all(|u| opq.contains(&(u as usize)));
+                    assert_eq!(all_closed(&l, width, a, b), want, "hole {hole:?} {a}..{b}");
+                }
+            }
+        }
+        // Pixels past the stored words are open.
+        assert!(!all_closed(&[u16::MAX], 40, 0, 20));
+        assert!(all_closed(&[u16::MAX], 40, 0, 16));
     }
 
     #[test]
