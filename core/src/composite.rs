@@ -71,7 +71,7 @@ pub struct Intermediate<'a> {
     rows: usize,
     pub(crate) pixels: &'a mut [Rgba],
     /// Opaque-pixel bitmap, [`opaque::words`]`(width)` words per scanline.
-    opaque: &'a mut [u16],
+    opaque: &'a mut [opaque::Word],
     stride: usize,
 }
 
@@ -84,7 +84,7 @@ impl<'a> Intermediate<'a> {
         width: usize,
         height: usize,
         pixels: &'a mut [Rgba],
-        links: &'a mut [u16],
+        links: &'a mut [opaque::Word],
     ) -> Result<Self, Error> {
         Self::band(width, height, 0, height, pixels, links)
     }
@@ -98,7 +98,7 @@ impl<'a> Intermediate<'a> {
         row0: usize,
         rows: usize,
         pixels: &'a mut [Rgba],
-        links: &'a mut [u16],
+        links: &'a mut [opaque::Word],
     ) -> Result<Self, Error> {
         if width >= u16::MAX as usize {
             return Err(Error::BadParameter {
@@ -148,14 +148,14 @@ impl<'a> Intermediate<'a> {
 
     /// The opaque-pixel bitmap of held scanline `r` (relative to the band), or an empty
     /// slice (every pixel open) past the band.
-    pub(crate) fn opaque_line(&self, r: usize) -> &[u16] {
+    pub(crate) fn opaque_line(&self, r: usize) -> &[opaque::Word] {
         self.opaque
             .get(r * self.stride..(r + 1) * self.stride)
             .unwrap_or_default()
     }
 
     /// Pixels and opaque-pixel bitmap of held scanline `r` (relative to the band).
-    pub(crate) fn scanline_mut(&mut self, r: usize) -> (&mut [Rgba], &mut [u16]) {
+    pub(crate) fn scanline_mut(&mut self, r: usize) -> (&mut [Rgba], &mut [opaque::Word]) {
         let w = self.width;
         (
             &mut self.pixels[r * w..(r + 1) * w],
@@ -342,7 +342,7 @@ impl<'b> Row<'b> {
 /// Which voxels of a row some open pixel reads: voxel `i` feeds pixels `i + shift` and
 /// `i + shift + 1` of the (up to two) scanlines that use the row.
 pub(crate) struct Needed<'a> {
-    lines: [Option<&'a [u16]>; 2],
+    lines: [Option<&'a [opaque::Word]>; 2],
     width: usize,
     shift: i64,
 }
@@ -831,7 +831,7 @@ struct Taps<'r> {
 #[cfg_attr(not(target_arch = "x86_64"), inline)]
 fn composite_span(
     pixels: &mut [Rgba],
-    opaque: &mut [u16],
+    opaque: &mut [opaque::Word],
     taps: &Taps<'_>,
     us: core::ops::Range<usize>,
     t: &SliceTables<'_>,
@@ -855,7 +855,7 @@ fn composite_span(
 #[cfg_attr(not(target_arch = "x86_64"), inline)]
 fn over_span(
     pixels: &mut [Rgba],
-    opaque: &mut [u16],
+    opaque: &mut [opaque::Word],
     taps: &Taps<'_>,
     us: core::ops::Range<usize>,
     ert: u32,
@@ -891,21 +891,21 @@ fn over_span(
 /// by pixel.
 #[cfg(target_pointer_width = "64")]
 #[inline(always)]
-fn mark_closed(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+fn mark_closed(opaque: &mut [opaque::Word], u: usize, px: &[Rgba], thr: u32) {
     mark_closed_words(opaque, u, px, thr);
 }
 
 /// [`mark_closed`] on 32-bit targets.
 #[cfg(not(target_pointer_width = "64"))]
 #[inline(always)]
-fn mark_closed(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+fn mark_closed(opaque: &mut [opaque::Word], u: usize, px: &[Rgba], thr: u32) {
     mark_closed_each(opaque, u, px, thr);
 }
 
 /// [`mark_closed`] 64 pixels at a time.
 #[cfg_attr(not(any(test, target_pointer_width = "64")), allow(dead_code))]
 #[inline(always)]
-fn mark_closed_words(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+fn mark_closed_words<W: opaque::BitWord>(opaque: &mut [W], u: usize, px: &[Rgba], thr: u32) {
     for (c, chunk) in px.chunks(64).enumerate() {
         let mut m = 0u64;
         for (i, p) in chunk.iter().enumerate() {
@@ -920,7 +920,7 @@ fn mark_closed_words(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
 /// [`mark_closed`] pixel by pixel.
 #[cfg_attr(all(not(test), target_pointer_width = "64"), allow(dead_code))]
 #[inline(always)]
-fn mark_closed_each(opaque: &mut [u16], u: usize, px: &[Rgba], thr: u32) {
+fn mark_closed_each<W: opaque::BitWord>(opaque: &mut [W], u: usize, px: &[Rgba], thr: u32) {
     for (i, p) in px.iter().enumerate() {
         if p[3] as u32 >= thr {
             opaque::mark(opaque, u + i);
@@ -1005,7 +1005,7 @@ mod tests {
         // pixels i + 7 and i + 8 of scanlines 4 and 5 (both in the band).
         let runs = [10u8, 4, 76, 3, 27, 0];
         let mut pixels = [[0u16; 4]; 2 * 140];
-        let mut links = [0u16; 2 * 140];
+        let mut links = [0; 2 * 140];
         let mut img = Intermediate::band(140, 10, 4, 2, &mut pixels, &mut links).unwrap();
         let close = |img: &mut Intermediate<'_>, r: usize, us: core::ops::Range<usize>| {
             let (_, line) = img.scanline_mut(r);
@@ -1081,7 +1081,7 @@ mod tests {
             }
             // Two scanlines of opaque bits: dense, sparse, or long opaque stretches.
             let mut pixels = [[0u16; 4]; 2 * W];
-            let mut links = [0u16; 2 * W];
+            let mut links = [0; 2 * W];
             let mut img = Intermediate::band(W, 10, 4, 2, &mut pixels, &mut links).unwrap();
             let density = next(4);
             for r in 0..2 {
@@ -1147,11 +1147,18 @@ mod tests {
                 .map(|_| [0, 0, 0, (rng() % (ONE as u64 + 1)) as u16])
                 .collect();
             let thr = 1 + (rng() % ONE as u64) as u32;
+            // Both word widths, whichever this target stores.
             let mut a = [0u16; 19];
             a.iter_mut().for_each(|w| *w = rng() as u16 & rng() as u16);
             let mut b = a;
-            mark_closed_words(&mut a[..opaque::words(width)], u, &px, thr);
-            mark_closed_each(&mut b[..opaque::words(width)], u, &px, thr);
+            mark_closed_words(&mut a[..width.div_ceil(16)], u, &px, thr);
+            mark_closed_each(&mut b[..width.div_ceil(16)], u, &px, thr);
+            assert_eq!(a, b, "case {case}");
+            let mut a = [0u64; 5];
+            a.iter_mut().for_each(|w| *w = rng() & rng());
+            let mut b = a;
+            mark_closed_words(&mut a[..width.div_ceil(64)], u, &px, thr);
+            mark_closed_each(&mut b[..width.div_ceil(64)], u, &px, thr);
             assert_eq!(a, b, "case {case}");
         }
     }
@@ -1197,7 +1204,7 @@ mod tests {
             };
             let (mut fast, mut slow) = (start, start);
             // Some pixels already opaque: both kernels must leave them alone.
-            let mut lf = [0u16; opaque::words(40)];
+            let mut lf = [0 as opaque::Word; opaque::words(40)];
             for u in 0..40 {
                 if next(7) == 0 {
                     opaque::mark(&mut lf, u);

@@ -9,12 +9,21 @@
 //! open bits of the scanlines that read it, shifted by the slice offset and ORed (see
 //! [`crate::composite`]). It also takes a sixteenth of the memory of 16-bit links.
 //!
-//! Storage is the caller's `u16` buffer (the one that held the links), 16 pixels per
-//! word, each scanline starting on a word: bit `u % 16` of word `u / 16` is set once
-//! pixel `u` is opaque. A zeroed buffer is an image with every pixel open.
+//! Storage is the caller's buffer of [`Word`]s (the one that held the links), `BITS`
+//! pixels per word, each scanline starting on a word: bit `u % BITS` of word `u / BITS`
+//! is set once pixel `u` is opaque. A zeroed buffer is an image with every pixel open.
+
+/// The bitmap's storage word: 64 pixels on 64-bit targets, where a 65-pixel window is
+/// two loads, and 16 on others, where 64-bit shifts are several instructions each (the
+/// Cortex-M3 firmware was measured with 16-bit words).
+#[cfg(target_pointer_width = "64")]
+pub type Word = u64;
+/// The bitmap's storage word (see the 64-bit definition).
+#[cfg(not(target_pointer_width = "64"))]
+pub type Word = u16;
 
 /// Pixels per word.
-const BITS: usize = 16;
+const BITS: usize = Word::BITS as usize;
 
 /// Words one scanline of `width` pixels takes.
 #[inline]
@@ -32,40 +41,139 @@ pub(crate) const fn ones(n: usize) -> u64 {
     }
 }
 
+/// What the bitmap needs of its storage word. Both widths are implemented (and tested on
+/// every host); [`Word`] picks one per target.
+pub(crate) trait BitWord: Copy + Eq {
+    /// Pixels per word.
+    const BITS: usize;
+    /// Every pixel opaque.
+    const ALL: Self;
+    /// Bits `o..o + 64` of `line` from word `w` on (`o < BITS`), bit `t` for pixel
+    /// `o + t`, and bit `o + 64`; words past the end read as zero.
+    fn window(line: &[Self], w: usize, o: usize) -> (u64, bool);
+    /// ORs `m << o` into `line` from word `w` on (bits past the end are dropped).
+    fn or_bits(line: &mut [Self], w: usize, o: usize, m: u64);
+    /// Bits `lo..=hi` (`lo <= hi < BITS`).
+    fn range(lo: usize, hi: usize) -> Self;
+    /// `self & mask == mask`.
+    fn covers(self, mask: Self) -> bool;
+    /// Bit `i`.
+    fn bit(self, i: usize) -> bool;
+    /// Sets bit `i`.
+    fn set(&mut self, i: usize);
+}
+
+impl BitWord for u16 {
+    const BITS: usize = 16;
+    const ALL: Self = u16::MAX;
+    #[inline(always)]
+    fn window(line: &[u16], w: usize, o: usize) -> (u64, bool) {
+        // One bounds check for the five words in the common case, one per word at the
+        // end.
+        let (lo, top) = match line.get(w..w + 5) {
+            Some(&[a, b, c, d, e]) => (
+                a as u64 | (b as u64) << 16 | (c as u64) << 32 | (d as u64) << 48,
+                e as u64,
+            ),
+            _ => {
+                let word = |k: usize| line.get(w + k).map_or(0, |&x| x as u64);
+                (
+                    word(0) | word(1) << 16 | word(2) << 32 | word(3) << 48,
+                    word(4),
+                )
+            }
+        };
+        let win = if o == 0 {
+            lo
+        } else {
+            (lo >> o) | (top << (64 - o))
+        };
+        (win, top >> o & 1 != 0)
+    }
+    #[inline(always)]
+    fn or_bits(line: &mut [u16], w: usize, o: usize, m: u64) {
+        let v = (m as u128) << o;
+        for k in 0..5 {
+            if let Some(x) = line.get_mut(w + k) {
+                *x |= (v >> (16 * k)) as u16;
+            }
+        }
+    }
+    #[inline(always)]
+    fn range(lo: usize, hi: usize) -> u16 {
+        (u16::MAX << lo) & (u16::MAX >> (15 - hi))
+    }
+    #[inline(always)]
+    fn covers(self, mask: u16) -> bool {
+        self & mask == mask
+    }
+    #[inline(always)]
+    fn bit(self, i: usize) -> bool {
+        self >> i & 1 != 0
+    }
+    #[inline(always)]
+    fn set(&mut self, i: usize) {
+        *self |= 1 << i;
+    }
+}
+
+impl BitWord for u64 {
+    const BITS: usize = 64;
+    const ALL: Self = u64::MAX;
+    #[inline(always)]
+    fn window(line: &[u64], w: usize, o: usize) -> (u64, bool) {
+        let (lo, top) = match line.get(w..w + 2) {
+            Some(&[a, b]) => (a, b),
+            _ => (line.get(w).copied().unwrap_or(0), 0),
+        };
+        let win = if o == 0 {
+            lo
+        } else {
+            (lo >> o) | (top << (64 - o))
+        };
+        (win, top >> o & 1 != 0)
+    }
+    #[inline(always)]
+    fn or_bits(line: &mut [u64], w: usize, o: usize, m: u64) {
+        let v = (m as u128) << o;
+        if let Some(x) = line.get_mut(w) {
+            *x |= v as u64;
+        }
+        if let Some(x) = line.get_mut(w + 1) {
+            *x |= (v >> 64) as u64;
+        }
+    }
+    #[inline(always)]
+    fn range(lo: usize, hi: usize) -> u64 {
+        (u64::MAX << lo) & (u64::MAX >> (63 - hi))
+    }
+    #[inline(always)]
+    fn covers(self, mask: u64) -> bool {
+        self & mask == mask
+    }
+    #[inline(always)]
+    fn bit(self, i: usize) -> bool {
+        self >> i & 1 != 0
+    }
+    #[inline(always)]
+    fn set(&mut self, i: usize) {
+        *self |= 1 << i;
+    }
+}
+
 /// The opaque bits of pixels `start..start + 64` (`start >= 0`) of a scanline stored in
 /// `line`, bit `t` for pixel `start + t`, and the bit of pixel `start + 64`; words past
 /// the end read as zero.
 #[inline(always)]
-fn opaque_window(line: &[u16], start: usize) -> (u64, bool) {
-    let w = start / BITS;
-    let o = start % BITS;
-    // One bounds check for the five words in the common case, one per word at the end.
-    let (lo, top) = match line.get(w..w + 5) {
-        Some(&[a, b, c, d, e]) => (
-            a as u64 | (b as u64) << 16 | (c as u64) << 32 | (d as u64) << 48,
-            e as u64,
-        ),
-        _ => {
-            let word = |k: usize| line.get(w + k).map_or(0, |&x| x as u64);
-            (
-                word(0) | word(1) << 16 | word(2) << 32 | word(3) << 48,
-                word(4),
-            )
-        }
-    };
-    let win = if o == 0 {
-        lo
-    } else {
-        (lo >> o) | (top << (64 - o))
-    };
-    (win, top >> o & 1 != 0)
+fn opaque_window<W: BitWord>(line: &[W], start: usize) -> (u64, bool) {
+    W::window(line, start / W::BITS, start % W::BITS)
 }
 
 /// Pixels `start..=start + 64` of a `width`-pixel scanline that no sample may change:
 /// bit `t` of the word for pixel `start + t` (`t < 64`), and the flag for pixel
 /// `start + 64`. A pixel is closed if it is opaque or lies outside `0..width`.
 #[inline(always)]
-pub(crate) fn closed65(line: &[u16], width: usize, start: i64) -> (u64, bool) {
+pub(crate) fn closed65<W: BitWord>(line: &[W], width: usize, start: i64) -> (u64, bool) {
     // Pixels start + t with t in lo..hi lie in the scanline.
     let lo = (-start).clamp(0, 65) as usize;
     let hi = (width as i64 - start).clamp(0, 65) as usize;
@@ -89,22 +197,23 @@ pub(crate) fn closed65(line: &[u16], width: usize, start: i64) -> (u64, bool) {
 /// compared at once, so a hidden-row test costs a word per 16 pixels instead of a
 /// 65-pixel window per 64 voxels.
 #[inline(always)]
-pub(crate) fn all_closed(line: &[u16], width: usize, a: i64, b: i64) -> bool {
+pub(crate) fn all_closed<W: BitWord>(line: &[W], width: usize, a: i64, b: i64) -> bool {
     let a = a.clamp(0, width as i64) as usize;
     let b = b.clamp(0, width as i64) as usize;
     if a >= b {
         return true;
     }
-    let (wa, wb) = (a / BITS, (b - 1) / BITS);
+    let (wa, wb) = (a / W::BITS, (b - 1) / W::BITS);
     let Some(words) = line.get(wa..=wb) else {
         return false;
     };
-    let head = u16::MAX << (a % BITS);
-    let tail = u16::MAX >> (BITS - 1 - (b - 1) % BITS);
+    let (ha, tb) = (a % W::BITS, (b - 1) % W::BITS);
     match words {
-        [w] => w & head & tail == head & tail,
+        [w] => w.covers(W::range(ha, tb)),
         [first, mid @ .., last] => {
-            first & head == head && last & tail == tail && mid.iter().all(|&w| w == u16::MAX)
+            first.covers(W::range(ha, W::BITS - 1))
+                && last.covers(W::range(0, tb))
+                && mid.iter().all(|&w| w == W::ALL)
         }
         [] => true,
     }
@@ -113,42 +222,35 @@ pub(crate) fn all_closed(line: &[u16], width: usize, a: i64, b: i64) -> bool {
 /// Bit `t` set if pixel `start + t` lies in `0..width` and is open (not opaque), for `t`
 /// in `0..64`.
 #[inline(always)]
-pub(crate) fn open_bits(line: &[u16], width: usize, start: i64) -> u64 {
+pub(crate) fn open_bits<W: BitWord>(line: &[W], width: usize, start: i64) -> u64 {
     !closed65(line, width, start).0
 }
 
 /// True if pixel `u` is opaque (pixels past the stored words count as open).
 #[inline(always)]
-pub(crate) fn is_opaque(line: &[u16], u: usize) -> bool {
-    line.get(u / BITS)
-        .is_some_and(|&w| w >> (u % BITS) & 1 != 0)
+pub(crate) fn is_opaque<W: BitWord>(line: &[W], u: usize) -> bool {
+    line.get(u / W::BITS).is_some_and(|w| w.bit(u % W::BITS))
 }
 
 /// Marks pixels `start + t` opaque for the bits `t` set in `m` (bits past the stored
 /// words are dropped).
 #[inline(always)]
-pub(crate) fn mark_bits(line: &mut [u16], start: usize, m: u64) {
-    let w = start / BITS;
-    let v = (m as u128) << (start % BITS);
-    for k in 0..5 {
-        if let Some(x) = line.get_mut(w + k) {
-            *x |= (v >> (BITS * k)) as u16;
-        }
-    }
+pub(crate) fn mark_bits<W: BitWord>(line: &mut [W], start: usize, m: u64) {
+    W::or_bits(line, start / W::BITS, start % W::BITS, m);
 }
 
 /// Marks pixel `u` opaque.
 #[inline(always)]
-pub(crate) fn mark(line: &mut [u16], u: usize) {
-    if let Some(w) = line.get_mut(u / BITS) {
-        *w |= 1 << (u % BITS);
+pub(crate) fn mark<W: BitWord>(line: &mut [W], u: usize) {
+    if let Some(w) = line.get_mut(u / W::BITS) {
+        w.set(u % W::BITS);
     }
 }
 
 /// The first open pixel in `u..end` of a `width`-pixel scanline, or `end` if none.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
 #[cfg_attr(not(target_arch = "x86_64"), inline)]
-pub(crate) fn next_open(line: &[u16], width: usize, mut u: usize, end: usize) -> usize {
+pub(crate) fn next_open<W: BitWord>(line: &[W], width: usize, mut u: usize, end: usize) -> usize {
     while u < end {
         let w = open_bits(line, width, u as i64);
         if w != 0 {
@@ -162,7 +264,12 @@ pub(crate) fn next_open(line: &[u16], width: usize, mut u: usize, end: usize) ->
 /// The end of the run of open pixels that starts at the open pixel `u`, at most `end`.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
 #[cfg_attr(not(target_arch = "x86_64"), inline)]
-pub(crate) fn open_run_end(line: &[u16], width: usize, mut u: usize, end: usize) -> usize {
+pub(crate) fn open_run_end<W: BitWord>(
+    line: &[W],
+    width: usize,
+    mut u: usize,
+    end: usize,
+) -> usize {
     while u < end {
         let w = open_bits(line, width, u as i64);
         let run = (!w).trailing_zeros() as usize;
@@ -178,21 +285,32 @@ pub(crate) fn open_run_end(line: &[u16], width: usize, mut u: usize, end: usize)
 mod tests {
     use super::*;
 
-    /// A scanline of `width` pixels with the given pixels opaque.
-    fn line(width: usize, opaque: &[usize]) -> heapless::Vec<u16, 16> {
+    /// A scanline of `width` pixels with the given pixels opaque, in words of `W`.
+    fn line<W: BitWord + Default>(width: usize, opaque: &[usize]) -> heapless::Vec<W, 16> {
         let mut l = heapless::Vec::new();
-        l.resize(words(width), 0).unwrap();
+        l.resize(width.div_ceil(W::BITS), W::default()).unwrap();
         for &u in opaque {
             mark(&mut l, u);
         }
         l
     }
 
-    #[test]
-    fn open_bits_match_the_per_pixel_definition() {
+    /// Runs a test body for both word widths, whichever this target stores.
+    macro_rules! both_widths {
+        ($name:ident, $body:ident) => {
+            #[test]
+            fn $name() {
+                $body::<u16>();
+                $body::<u64>();
+            }
+        };
+    }
+
+    both_widths!(open_bits_match_the_per_pixel_definition, open_bits_case);
+    fn open_bits_case<W: BitWord + Default>() {
         let width = 150;
         let opq = [0, 1, 5, 15, 16, 17, 63, 64, 65, 100, 127, 128, 149];
-        let l = line(width, &opq);
+        let l = line::<W>(width, &opq);
         for start in -80i64..200 {
             let w = open_bits(&l, width, start);
             for t in 0..64 {
@@ -212,15 +330,15 @@ mod tests {
         }
     }
 
-    #[test]
-    fn all_closed_matches_the_per_pixel_definition() {
+    both_widths!(all_closed_matches_the_per_pixel_definition, all_closed_case);
+    fn all_closed_case<W: BitWord + Default>() {
         let width = 150;
         let mut opq: heapless::Vec<usize, 150> = (0..width).collect();
         for hole in [None, Some(0), Some(15), Some(16), Some(70), Some(149)] {
             if let Some(h) = hole {
                 opq = (0..width).filter(|&u| u != h).collect();
             }
-            let l = line(width, &opq);
+            let l = line::<W>(width, &opq);
             for a in -20i64..170 {
                 for b in a - 1..a + 90 {
                     let want = (a.max(0)..b.min(width as i64)).all(|u| opq.contains(&(u as usize)));
@@ -229,18 +347,21 @@ mod tests {
             }
         }
         // Pixels past the stored words are open.
-        assert!(!all_closed(&[u16::MAX], 40, 0, 20));
-        assert!(all_closed(&[u16::MAX], 40, 0, 16));
+        assert!(!all_closed(&[W::ALL], W::BITS + 24, 0, W::BITS as i64 + 4));
+        assert!(all_closed(&[W::ALL], W::BITS + 24, 0, W::BITS as i64));
     }
 
-    #[test]
-    fn mark_bits_marks_exactly_the_pixels_of_its_mask() {
+    both_widths!(
+        mark_bits_marks_exactly_the_pixels_of_its_mask,
+        mark_bits_case
+    );
+    fn mark_bits_case<W: BitWord + Default + core::fmt::Debug>() {
         let width = 150;
         let mut rng = crate::xorshift(0x5eed);
         for start in 0..width + 20 {
             let m = rng();
-            let mut a = line(width, &[]);
-            let mut b = line(width, &[]);
+            let mut a = line::<W>(width, &[]);
+            let mut b = line::<W>(width, &[]);
             mark_bits(&mut a, start, m);
             for t in 0..64 {
                 if m >> t & 1 != 0 {
@@ -251,13 +372,13 @@ mod tests {
         }
     }
 
-    #[test]
-    fn runs_and_skips_cover_exactly_the_open_pixels() {
+    both_widths!(runs_and_skips_cover_exactly_the_open_pixels, runs_case);
+    fn runs_case<W: BitWord + Default>() {
         let width = 200;
         let opq: heapless::Vec<usize, 200> = (0..width)
             .filter(|u| (u * 7 + u / 13) % 5 < 2 || (70..150).contains(u))
             .collect();
-        let l = line(width, &opq);
+        let l = line::<W>(width, &opq);
         for (lo, hi) in [(0, 200), (3, 64), (64, 65), (69, 151), (150, 200), (10, 10)] {
             // Walk the open runs with next_open / open_run_end ...
             let mut seen = [false; 200];

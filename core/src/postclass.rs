@@ -115,7 +115,7 @@ pub struct PostWorkspace<'a> {
     pub pixels: &'a mut [Rgba],
     /// The opaque-pixel bitmap ([`crate::opaque::words`]`(width)` per scanline; as many
     /// as `pixels` is always enough).
-    pub links: &'a mut [u16],
+    pub links: &'a mut [crate::opaque::Word],
     /// One flag per brick ([`brick_count`]).
     pub visible: &'a mut [bool],
     /// Pre-integration table, 65 536 entries (only for [`PostMode::PreIntegrated`]).

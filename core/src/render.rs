@@ -40,7 +40,7 @@ pub struct Workspace<'a> {
     pub pixels: &'a mut [Rgba],
     /// The opaque-pixel bitmap: [`crate::opaque::words`]`(width)` entries per
     /// intermediate scanline (as many as `pixels` is always enough).
-    pub links: &'a mut [u16],
+    pub links: &'a mut [crate::opaque::Word],
     /// Voxel row buffers: [`composite::row_buffer_len`] of the largest volume side.
     pub rows: &'a mut [Rgba],
     /// One output row: the image width.
@@ -64,13 +64,14 @@ pub struct ShadowWorkspace<'a> {
 /// Buffers sized at compile time: `PIX` intermediate pixels, `ROW` row-buffer entries,
 /// `W` image width.
 ///
-/// Bytes: `10·PIX + 8·ROW + 4·W + 102 448` (the shade table; the `u16` per pixel holds
-/// the opaque-pixel bitmap, which uses a sixteenth of it). Use
+/// Bytes: `(8 + w)·PIX + 8·ROW + 4·W + 102 448` (the shade table), where `w` is the size
+/// of an [`crate::opaque::Word`] (2 on 32-bit targets, 8 on 64-bit ones): the word per
+/// pixel holds the opaque-pixel bitmap, which uses a sixteenth or less of it. Use
 /// [`view::max_intermediate_pixels`] and [`composite::row_buffer_len`] to choose `PIX`
 /// and `ROW` for a maximum volume.
 pub struct StaticWorkspace<const PIX: usize, const ROW: usize, const W: usize> {
     pixels: [Rgba; PIX],
-    links: [u16; PIX],
+    links: [crate::opaque::Word; PIX],
     rows: [Rgba; ROW],
     out_row: [[u8; 4]; W],
     shade: ShadeTable,
@@ -482,7 +483,7 @@ pub const fn workspace_bytes(dims: [usize; 3], width: usize) -> usize {
     if dims[2] > m {
         m = dims[2];
     }
-    pix * (8 + 2)
+    pix * (8 + core::mem::size_of::<crate::opaque::Word>())
         + composite::row_buffer_len(m) * 8
         + width * 4
         + core::mem::size_of::<ShadeTable>()
@@ -653,7 +654,7 @@ mod tests {
                 let view = Factorization::new(&grid, &cam).unwrap();
                 let pix = view::max_intermediate_pixels(grid.dims);
                 let mut pixels = vec![[0u16; 4]; pix];
-                let mut links = vec![0u16; pix];
+                let mut links = vec![0; pix];
                 let mut rows = vec![[0u16; 4]; 64];
                 let mut out_row = [[0u8; 4]; 48];
                 let mut frame = vec![[0u8; 4]; 48 * 40];
@@ -690,7 +691,7 @@ mod tests {
                 };
                 let [iw, ih] = view.intermediate;
                 let mut p2 = vec![[0u16; 4]; iw * ih];
-                let mut l2 = vec![0u16; iw * ih];
+                let mut l2 = vec![0; iw * ih];
                 let mut img = Intermediate::new(iw, ih, &mut p2, &mut l2).unwrap();
                 dense_composite(&dense, &grid, &view, &tables, &mut img);
                 let mut frame2 = vec![[0u8; 4]; 48 * 40];

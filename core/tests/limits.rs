@@ -481,7 +481,7 @@ fn workspace_capacity_limits_are_errors() {
         "shadow",
     );
     // Intermediate images wider than the link type can skip.
-    let (mut p, mut l) = (vec![[0u16; 4]; 1], vec![0u16; 1]);
+    let (mut p, mut l) = (vec![[0u16; 4]; 1], vec![0; 1]);
     assert!(matches!(
         Intermediate::new(65535, 1, &mut p, &mut l),
         Err(Error::BadParameter { .. })

@@ -306,7 +306,7 @@ fn classify_and_encode(vol: &Volume, class: &Classification) -> Encoded {
 /// Heap buffers sized exactly by the documented formulas for `dims` and `width`.
 struct Buffers {
     pixels: Vec<Rgba>,
-    links: Vec<u16>,
+    links: Vec<shearwarp_core::opaque::Word>,
     rows: Vec<Rgba>,
     out_row: Vec<[u8; 4]>,
     shade: Box<ShadeTable>,
@@ -484,7 +484,7 @@ proptest! {
         let tables = frame.tables(s.color, &shade, None);
         let mut rows = vec![[0u16; 4]; composite::rows_needed(&frame.view)];
         let mut whole = vec![[0u16; 4]; iw * ih];
-        let mut links = vec![0u16; iw * ih];
+        let mut links = vec![0; iw * ih];
         {
             let mut img = Intermediate::new(iw, ih, &mut whole, &mut links)
                 .map_err(|e| TestCaseError::fail(format!("intermediate: {e:?}")))?;
@@ -499,7 +499,7 @@ proptest! {
         }
         // Bands of 3 scanlines give the same pixels.
         let mut banded = vec![[0u16; 4]; iw * ih];
-        let mut blinks = vec![0u16; iw * ih];
+        let mut blinks = vec![0; iw * ih];
         for (b, (p, l)) in banded.chunks_mut(3 * iw).zip(blinks.chunks_mut(3 * iw)).enumerate() {
             let n = p.len() / iw;
             let mut img = Intermediate::band(iw, ih, 3 * b, n, p, l)

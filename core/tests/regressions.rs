@@ -164,7 +164,7 @@ fn depth_cue_keeps_colour_within_alpha() {
     let frame = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
     let [iw, ih] = frame.view.intermediate;
     let pix = view::max_intermediate_pixels(dims);
-    let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0u16; pix]);
+    let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
     let mut rows = vec![[0u16; 4]; 64];
     let tables = frame.tables(&color, &shade, None);
     let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();

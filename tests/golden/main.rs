@@ -232,7 +232,7 @@ fn integrated_opacity(
     let tables = frame.tables(&color, &shade, None);
     let [w, h] = frame.view.intermediate;
     let mut px = vec![[0u16; 4]; w * h];
-    let mut links = vec![0u16; w * h];
+    let mut links = vec![0; w * h];
     let mut rows = vec![[0u16; 4]; 2 * (enc.grid.dims.iter().max().unwrap() + 2)];
     let mut img = Intermediate::new(w, h, &mut px, &mut links).unwrap();
     let mut src = enc.volume().unwrap();

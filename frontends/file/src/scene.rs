@@ -421,7 +421,7 @@ struct Unclaimed<'a> {
     threads: usize,
     row0: usize,
     pixels: &'a mut [Rgba],
-    opaque: &'a mut [u16],
+    opaque: &'a mut [shearwarp_core::opaque::Word],
 }
 
 impl<'a> Unclaimed<'a> {
@@ -430,7 +430,14 @@ impl<'a> Unclaimed<'a> {
     /// thread, at least [`Renderer::BAND_ROWS`]. Each band costs a duplicated voxel row
     /// and a cold start per slice, so early bands are long; short late bands keep the
     /// threads finishing together.
-    fn claim(&mut self) -> Option<(usize, usize, &'a mut [Rgba], &'a mut [u16])> {
+    fn claim(
+        &mut self,
+    ) -> Option<(
+        usize,
+        usize,
+        &'a mut [Rgba],
+        &'a mut [shearwarp_core::opaque::Word],
+    )> {
         let left = self.ih.saturating_sub(self.row0);
         if left == 0 {
             return None;
@@ -494,7 +501,7 @@ fn on_threads<T: Send>(
 /// code from the same inputs.
 pub struct Renderer {
     pixels: Vec<Rgba>,
-    links: Vec<u16>,
+    links: Vec<shearwarp_core::opaque::Word>,
     rows: Vec<Vec<Rgba>>,
     shade: Box<ShadeTable>,
     threads: usize,
@@ -1069,7 +1076,7 @@ impl DenseVolume {
 /// Workspace and tables for rendering a [`DenseVolume`].
 pub struct PostRenderer {
     pixels: Vec<Rgba>,
-    links: Vec<u16>,
+    links: Vec<shearwarp_core::opaque::Word>,
     visible: Vec<bool>,
     preint: Vec<Rgba>,
     shade: Box<ShadeTable>,
