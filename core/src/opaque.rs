@@ -63,9 +63,31 @@ pub(crate) trait BitWord: Copy + Eq {
     fn set(&mut self, i: usize);
 }
 
+/// The parts of [`BitWord`] that are the same for every width.
+macro_rules! word_bits {
+    ($t:ty) => {
+        const BITS: usize = <$t>::BITS as usize;
+        const ALL: Self = <$t>::MAX;
+        #[inline(always)]
+        fn range(lo: usize, hi: usize) -> $t {
+            (<$t>::MAX << lo) & (<$t>::MAX >> (<Self as BitWord>::BITS - 1 - hi))
+        }
+        #[inline(always)]
+        fn covers(self, mask: $t) -> bool {
+            self & mask == mask
+        }
+        #[inline(always)]
+        fn bit(self, i: usize) -> bool {
+            self >> i & 1 != 0
+        }
+        #[inline(always)]
+        fn set(&mut self, i: usize) {
+            *self |= 1 << i;
+        }
+    };
+}
+
 impl BitWord for u16 {
-    const BITS: usize = 16;
-    const ALL: Self = u16::MAX;
     #[inline(always)]
     fn window(line: &[u16], w: usize, o: usize) -> (u64, bool) {
         // One bounds check for the five words in the common case, one per word at the
@@ -99,27 +121,10 @@ impl BitWord for u16 {
             }
         }
     }
-    #[inline(always)]
-    fn range(lo: usize, hi: usize) -> u16 {
-        (u16::MAX << lo) & (u16::MAX >> (15 - hi))
-    }
-    #[inline(always)]
-    fn covers(self, mask: u16) -> bool {
-        self & mask == mask
-    }
-    #[inline(always)]
-    fn bit(self, i: usize) -> bool {
-        self >> i & 1 != 0
-    }
-    #[inline(always)]
-    fn set(&mut self, i: usize) {
-        *self |= 1 << i;
-    }
+    word_bits!(u16);
 }
 
 impl BitWord for u64 {
-    const BITS: usize = 64;
-    const ALL: Self = u64::MAX;
     #[inline(always)]
     fn window(line: &[u64], w: usize, o: usize) -> (u64, bool) {
         let (lo, top) = match line.get(w..w + 2) {
@@ -143,22 +148,7 @@ impl BitWord for u64 {
             *x |= (v >> 64) as u64;
         }
     }
-    #[inline(always)]
-    fn range(lo: usize, hi: usize) -> u64 {
-        (u64::MAX << lo) & (u64::MAX >> (63 - hi))
-    }
-    #[inline(always)]
-    fn covers(self, mask: u64) -> bool {
-        self & mask == mask
-    }
-    #[inline(always)]
-    fn bit(self, i: usize) -> bool {
-        self >> i & 1 != 0
-    }
-    #[inline(always)]
-    fn set(&mut self, i: usize) {
-        *self |= 1 << i;
-    }
+    word_bits!(u64);
 }
 
 /// The opaque bits of pixels `start..start + 64` (`start >= 0`) of a scanline stored in
