@@ -537,13 +537,17 @@ impl Iterator for MergedSpans<'_> {
 }
 
 /// Reads one byte per 64-byte line of `voxels`, a row the compositor reaches two rows
-/// later. Lazy shading reads a few scattered voxels per row, which the hardware does not
-/// prefetch; walking the row ahead streams the slice into the cache instead (about 10 %
-/// of a frame on the MR head, which otherwise waits on those reads). Bare-metal targets
-/// have no data cache to fill, so there it does nothing.
+/// later: the compositor's default way to warm the cache (see [`composite_slice_in`]'s
+/// `warm`). Lazy shading reads a few scattered voxels per row, which the hardware does
+/// not prefetch; walking the row ahead streams the slice into the cache instead (about
+/// 10 % of a frame on the MR head, which otherwise waits on those reads). The loads make
+/// the core wait for memory when the row is not cached, which a prefetch instruction
+/// does not (the x86-64-v3 and v4 builds use one, see
+/// [`crate::render::composite_band_until_x86_v3`]). Bare-metal targets have no data
+/// cache to fill, so there it does nothing.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
 #[cfg_attr(not(target_arch = "x86_64"), inline)]
-fn touch(voxels: &[Voxel]) {
+pub(crate) fn touch(voxels: &[Voxel]) {
     if cfg!(target_os = "none") {
         return;
     }
@@ -565,12 +569,13 @@ pub fn composite_slice(
     rows: &mut [Rgba],
     shadow: Option<&ShadowLookup<'_>>,
 ) -> Result<(), Error> {
-    composite_slice_in(img, slice, k, view, tables, rows, shadow, false)
+    composite_slice_in(img, slice, k, view, tables, rows, shadow, false, &touch)
 }
 
 /// [`composite_slice`] with `clean` saying whether `rows` is all zero on entry (every
 /// path leaves it all zero again on success, so a caller compositing slice after slice
-/// clears it once instead of once per slice and band).
+/// clears it once instead of once per slice and band), and `warm` called on each voxel
+/// row two rows before the loop reads it ([`touch`], or a prefetch).
 // Inlined on x86-64 so that the instruction-set builds of
 // [`crate::render::composite_band_until`] compile this loop for their own features (a
 // function that is not inlined keeps the baseline build); bare-metal targets keep one
@@ -586,6 +591,7 @@ pub(crate) fn composite_slice_in(
     rows: &mut [Rgba],
     shadow: Option<&ShadowLookup<'_>>,
     clean: bool,
+    warm: &impl Fn(&[Voxel]),
 ) -> Result<(), Error> {
     let [ni, nj, _] = view.dims;
     if slice.ni != ni || slice.nj != nj {
@@ -647,7 +653,7 @@ pub(crate) fn composite_slice_in(
             && Needed::lines(img, jt + 3 + ov.n as i64, ou.n as i64).hides(ahead.0, ni);
         hidden[(jt + 3).rem_euclid(4) as usize] = hide;
         if !hide {
-            touch(ahead.1);
+            warm(ahead.1);
         }
         if hidden[(jt + 1).rem_euclid(4) as usize] {
             bot.clear();
