@@ -155,6 +155,7 @@ impl<'a> Intermediate<'a> {
     }
 
     /// Pixels and opaque-pixel bitmap of held scanline `r` (relative to the band).
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     pub(crate) fn scanline_mut(&mut self, r: usize) -> (&mut [Rgba], &mut [opaque::Word]) {
         let w = self.width;
         (
@@ -626,13 +627,7 @@ pub(crate) fn composite_slice_in(
         return Ok(());
     }
     let empty: (&[u8], &[Voxel]) = (&[], &[]);
-    let row_of = |j: i64| {
-        if j >= 0 && (j as usize) < nj {
-            slice.scanline(j as usize)
-        } else {
-            empty
-        }
-    };
+    let row_of = |j: i64| slice.row(j);
     let first = row_of(jt_lo);
     // Row j is read by scanlines j + n_v (as the bottom row) and j + n_v + 1 (top).
     // In MIP no pixel becomes opaque, so every voxel is needed.
@@ -722,14 +717,7 @@ fn composite_slice_supersampled(
     let (mut top, mut bot) = Row::pair(rows, ni, clean);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let width = img.width;
-    let empty: (&[u8], &[Voxel]) = (&[], &[]);
-    let row_of = |j: i64| {
-        if j >= 0 && (j as usize) < nj {
-            slice.scanline(j as usize)
-        } else {
-            empty
-        }
-    };
+    let row_of = |j: i64| slice.row(j);
     // Rows held in `top` / `bot` (voxel row indices), i64::MIN when none.
     let mut held = i64::MIN;
     for v in img.row0..img.row0 + img.rows {
