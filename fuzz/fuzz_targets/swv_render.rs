@@ -50,10 +50,10 @@ type Src<'a> = StreamSource<SliceReader<'a>, { CAP.0 }, { CAP.1 }, { CAP.2 }>;
 
 struct Bufs {
     pixels: Vec<Rgba>,
-    links: Vec<u16>,
+    links: Vec<shearwarp_core::opaque::Word>,
     rows: Vec<Rgba>,
     persp_pixels: Vec<Rgba>,
-    persp_links: Vec<u16>,
+    persp_links: Vec<shearwarp_core::opaque::Word>,
     persp_rows: Vec<Rgba>,
     out_row: Vec<[u8; 4]>,
     shade: Box<ShadeTable>,
