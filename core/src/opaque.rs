@@ -48,9 +48,9 @@ pub(crate) trait BitWord: Copy + Eq {
     const BITS: usize;
     /// Every pixel opaque.
     const ALL: Self;
-    /// Bits `o..o + 64` of `line` from word `w` on (`o < BITS`), bit `t` for pixel
-    /// `o + t`, and bit `o + 64`; words past the end read as zero.
-    fn window(line: &[Self], w: usize, o: usize) -> (u64, bool);
+    /// The 64 bits of `line` from word `w` on and the word (or words) after them, both
+    /// widened to `u64`; words past the end read as zero.
+    fn words(line: &[Self], w: usize) -> (u64, u64);
     /// ORs `m << o` into `line` from word `w` on (bits past the end are dropped).
     fn or_bits(line: &mut [Self], w: usize, o: usize, m: u64);
     /// Bits `lo..=hi` (`lo <= hi < BITS`).
@@ -89,10 +89,10 @@ macro_rules! word_bits {
 
 impl BitWord for u16 {
     #[inline(always)]
-    fn window(line: &[u16], w: usize, o: usize) -> (u64, bool) {
+    fn words(line: &[u16], w: usize) -> (u64, u64) {
         // One bounds check for the five words in the common case, one per word at the
         // end.
-        let (lo, top) = match line.get(w..w + 5) {
+        match line.get(w..w + 5) {
             Some(&[a, b, c, d, e]) => (
                 a as u64 | (b as u64) << 16 | (c as u64) << 32 | (d as u64) << 48,
                 e as u64,
@@ -104,13 +104,7 @@ impl BitWord for u16 {
                     word(4),
                 )
             }
-        };
-        let win = if o == 0 {
-            lo
-        } else {
-            (lo >> o) | (top << (64 - o))
-        };
-        (win, top >> o & 1 != 0)
+        }
     }
     #[inline(always)]
     fn or_bits(line: &mut [u16], w: usize, o: usize, m: u64) {
@@ -126,17 +120,11 @@ impl BitWord for u16 {
 
 impl BitWord for u64 {
     #[inline(always)]
-    fn window(line: &[u64], w: usize, o: usize) -> (u64, bool) {
-        let (lo, top) = match line.get(w..w + 2) {
+    fn words(line: &[u64], w: usize) -> (u64, u64) {
+        match line.get(w..w + 2) {
             Some(&[a, b]) => (a, b),
             _ => (line.get(w).copied().unwrap_or(0), 0),
-        };
-        let win = if o == 0 {
-            lo
-        } else {
-            (lo >> o) | (top << (64 - o))
-        };
-        (win, top >> o & 1 != 0)
+        }
     }
     #[inline(always)]
     fn or_bits(line: &mut [u64], w: usize, o: usize, m: u64) {
@@ -156,7 +144,14 @@ impl BitWord for u64 {
 /// the end read as zero.
 #[inline(always)]
 fn opaque_window<W: BitWord>(line: &[W], start: usize) -> (u64, bool) {
-    W::window(line, start / W::BITS, start % W::BITS)
+    let o = start % W::BITS;
+    let (lo, top) = W::words(line, start / W::BITS);
+    let win = if o == 0 {
+        lo
+    } else {
+        (lo >> o) | (top << (64 - o))
+    };
+    (win, top >> o & 1 != 0)
 }
 
 /// Pixels `start..=start + 64` of a `width`-pixel scanline that no sample may change:
