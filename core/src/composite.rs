@@ -642,14 +642,14 @@ pub(crate) fn composite_slice_in(
     // ever close, so a row hidden then is still hidden when its turn comes.
     let mut hidden = [false; 4];
     // The scanlines of rows jt + 1 ..= jt + 3 by row index mod 4, each looked up once.
-    let mut lines = [empty; 4];
+    let mut scans = [empty; 4];
     for j in jt_lo + 1..jt_lo + 3 {
-        lines[j.rem_euclid(4) as usize] = row_of(j);
+        scans[j.rem_euclid(4) as usize] = row_of(j);
     }
     for jt in jt_lo..=jt_hi {
-        let next = lines[(jt + 1).rem_euclid(4) as usize];
+        let next = scans[(jt + 1).rem_euclid(4) as usize];
         let ahead = row_of(jt + 3);
-        lines[(jt + 3).rem_euclid(4) as usize] = ahead;
+        scans[(jt + 3).rem_euclid(4) as usize] = ahead;
         let hide = skip_opaque_voxels
             && Needed::lines(img, jt + 3 + ov.n as i64, ou.n as i64).hides(ahead.0, ni);
         hidden[(jt + 3).rem_euclid(4) as usize] = hide;

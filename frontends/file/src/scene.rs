@@ -7,6 +7,7 @@ use shearwarp_core::classify::{
 };
 use shearwarp_core::composite::{self, Intermediate, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
+use shearwarp_core::opaque;
 use shearwarp_core::render::{Frame, Settings};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Lighting, ShadeTable};
@@ -421,7 +422,7 @@ struct Unclaimed<'a> {
     threads: usize,
     row0: usize,
     pixels: &'a mut [Rgba],
-    opaque: &'a mut [shearwarp_core::opaque::Word],
+    opaque: &'a mut [opaque::Word],
 }
 
 impl<'a> Unclaimed<'a> {
@@ -430,14 +431,7 @@ impl<'a> Unclaimed<'a> {
     /// thread, at least [`Renderer::BAND_ROWS`]. Each band costs a duplicated voxel row
     /// and a cold start per slice, so early bands are long; short late bands keep the
     /// threads finishing together.
-    fn claim(
-        &mut self,
-    ) -> Option<(
-        usize,
-        usize,
-        &'a mut [Rgba],
-        &'a mut [shearwarp_core::opaque::Word],
-    )> {
+    fn claim(&mut self) -> Option<(usize, usize, &'a mut [Rgba], &'a mut [opaque::Word])> {
         let left = self.ih.saturating_sub(self.row0);
         if left == 0 {
             return None;
@@ -445,7 +439,7 @@ impl<'a> Unclaimed<'a> {
         let rows = (left / (2 * self.threads))
             .max(Renderer::BAND_ROWS)
             .min(left);
-        let stride = shearwarp_core::opaque::words(self.iw);
+        let stride = opaque::words(self.iw);
         let (p, rest) = std::mem::take(&mut self.pixels).split_at_mut(rows * self.iw);
         self.pixels = rest;
         let (o, rest) = std::mem::take(&mut self.opaque).split_at_mut(rows * stride);
@@ -501,7 +495,7 @@ fn on_threads<T: Send>(
 /// code from the same inputs.
 pub struct Renderer {
     pixels: Vec<Rgba>,
-    links: Vec<shearwarp_core::opaque::Word>,
+    links: Vec<opaque::Word>,
     rows: Vec<Vec<Rgba>>,
     shade: Box<ShadeTable>,
     threads: usize,
@@ -731,7 +725,7 @@ impl Renderer {
             threads: self.rows.len(),
             row0: 0,
             pixels: &mut self.pixels[..n],
-            opaque: &mut self.links[..shearwarp_core::opaque::words(iw) * ih],
+            opaque: &mut self.links[..opaque::words(iw) * ih],
         });
         let stopped = AtomicBool::new(false);
         let isa = self.isa;
@@ -1076,7 +1070,7 @@ impl DenseVolume {
 /// Workspace and tables for rendering a [`DenseVolume`].
 pub struct PostRenderer {
     pixels: Vec<Rgba>,
-    links: Vec<shearwarp_core::opaque::Word>,
+    links: Vec<opaque::Word>,
     visible: Vec<bool>,
     preint: Vec<Rgba>,
     shade: Box<ShadeTable>,
