@@ -73,15 +73,7 @@ pub fn warp_rows(
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
-    warp_generic(
-        px,
-        view,
-        rows,
-        row,
-        |q| q.map(fixed::to_u8),
-        interior_u8,
-        |y, r| sink.put_row(y, r),
-    )
+    warp_generic(px, view, rows, row, |y, r| sink.put_row(y, r))
 }
 
 /// As [`warp_rows`], handing out rows at the intermediate image's full precision:
@@ -93,31 +85,50 @@ pub fn warp_rows_q15(
     row: &mut [[u16; 4]],
     mut put_row: impl FnMut(usize, &[[u16; 4]]) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let convert = |q: [u32; 4]| q.map(|c| c.min(ONE) as u16);
-    warp_generic(
-        px,
-        view,
-        rows,
-        row,
-        convert,
-        |t: &[Rgba; 2], b: &[Rgba; 2], w| convert(interior(t, b, w)),
-        |y, r| put_row(y, r),
-    )
+    warp_generic(px, view, rows, row, |y, r| put_row(y, r))
 }
 
-/// The warp loop, generic over the output pixel: `convert` turns a Q15 sample into it,
-/// and `inner` gives the same result as `convert` of [`interior`] for a sample whose four
-/// taps lie inside the intermediate image (most of them, so a faster one pays).
-fn warp_generic<T: Copy>(
+/// An output pixel of the warp. A trait rather than a pair of closures: the closures
+/// were called out of line from the pixel loop (a sixth of a 512² frame on brainsmall).
+trait Texel: Copy {
+    /// The pixel of a Q15 sample.
+    fn convert(q: [u32; 4]) -> Self;
+    /// `convert` of [`interior`] for a sample whose four taps (top left, top right,
+    /// bottom left, bottom right, each [`pack`]ed) lie inside the intermediate image
+    /// (most of them, so a faster one pays).
+    #[inline(always)]
+    fn inner(taps: [u64; 4], w: [u32; 4]) -> Self {
+        Self::convert(interior_packed(taps, w))
+    }
+}
+
+impl Texel for [u8; 4] {
+    #[inline(always)]
+    fn convert(q: [u32; 4]) -> Self {
+        q.map(fixed::to_u8)
+    }
+    #[inline(always)]
+    fn inner(taps: [u64; 4], w: [u32; 4]) -> Self {
+        interior_u8(taps, w)
+    }
+}
+
+impl Texel for [u16; 4] {
+    #[inline(always)]
+    fn convert(q: [u32; 4]) -> Self {
+        q.map(|c| c.min(ONE) as u16)
+    }
+}
+
+/// The warp loop, generic over the output pixel.
+fn warp_generic<T: Texel>(
     px: &[Rgba],
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [T],
-    convert: impl Fn([u32; 4]) -> T,
-    inner: impl Fn(&[Rgba; 2], &[Rgba; 2], [u32; 4]) -> T,
     mut put_row: impl FnMut(usize, &[T]) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let zero = convert([0; 4]);
+    let zero = T::convert([0; 4]);
     let [w, h] = view.image;
     need("warp row", w, row.len())?;
     let [iwu, ihu] = view.intermediate;
@@ -138,7 +149,7 @@ fn warp_generic<T: Copy>(
             let mut num = [at(0), at(1), at(2)];
             for out in row.iter_mut() {
                 *out = match project(num) {
-                    Some((u, v)) => sample(px, iw, ih, u, v, zero, &convert, &inner),
+                    Some((u, v)) => sample(px, iw, ih, u, v, zero),
                     None => zero,
                 };
                 for (n, s) in num.iter_mut().zip(step) {
@@ -148,16 +159,22 @@ fn warp_generic<T: Copy>(
         } else {
             let u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
             let v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
-            // Only pixels xa..xb of the row reach the intermediate image at all.
-            let (xa, xb) = reach(u, du, iw, v, dv, ih, w);
+            // Only pixels xa..xb of the row reach the intermediate image at all, and of
+            // those, xi..xj have all four taps inside it (most of them): the edge pixels
+            // take the checked path, the others a loop without per-tap tests.
+            let one = 1i64 << FRAC;
+            let (xa, xb) = reach(u, du, v, dv, [-one, iw * one], [-one, ih * one], w);
+            let (xi, xj) = reach(u, du, v, dv, [0, (iw - 1) * one], [0, (ih - 1) * one], w);
+            let (xi, xj) = if xi < xj { (xi, xj) } else { (xb, xb) };
             row[..xa].fill(zero);
             row[xb..].fill(zero);
-            let (mut u, mut v) = (u + xa as i64 * du, v + xa as i64 * dv);
-            for out in &mut row[xa..xb] {
-                *out = sample(px, iw, ih, u, v, zero, &convert, &inner);
-                u += du;
-                v += dv;
+            let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
+            for x in (xa..xi).chain(xj..xb) {
+                let (u, v) = at(x);
+                row[x] = sample(px, iw, ih, u, v, zero);
             }
+            let (u, v) = at(xi);
+            inside_run(px, iwu, (u, du), (v, dv), &mut row[xi..xj], zero);
         }
         put_row(y, row)?;
     }
@@ -172,15 +189,16 @@ fn reaches(u: i64, v: i64, iw: i64, ih: i64) -> bool {
     u0 >= -1 && v0 >= -1 && u0 < iw && v0 < ih
 }
 
-/// The pixels `xa..xb` of a `w`-pixel row, starting at `(u, v)` and stepping by
-/// `(du, dv)`, that reach the intermediate image ([`reaches`]): the others sample zero.
-/// The positions are affine in x, so these pixels are one interval; it is estimated in
-/// floating point and then settled with the exact test at both ends.
-fn reach(u: i64, du: i64, iw: i64, v: i64, dv: i64, ih: i64, w: usize) -> (usize, usize) {
-    let one = (1i64 << FRAC) as f64;
+/// The pixels `xa..xb` of a `w`-pixel row, starting at the 16.16 position `(u, v)` and
+/// stepping by `(du, dv)`, whose position lies in the box `bu[0] ≤ u < bu[1]`,
+/// `bv[0] ≤ v < bv[1]`: with the box `[-1, n)` (in pixels) the pixels that reach the
+/// intermediate image ([`reaches`]), with `[0, n − 1)` those whose four taps lie inside
+/// it. The positions are affine in x, so these pixels are one interval; it is estimated
+/// in floating point and then settled with the exact test at both ends.
+fn reach(u: i64, du: i64, v: i64, dv: i64, bu: [i64; 2], bv: [i64; 2], w: usize) -> (usize, usize) {
     // x with lo ≤ p + x·dp < hi, as a real interval.
-    let span = |p: i64, dp: i64, n: i64| -> (f64, f64) {
-        let (lo, hi) = (-one - p as f64, n as f64 * one - p as f64);
+    let span = |p: i64, dp: i64, b: [i64; 2]| -> (f64, f64) {
+        let (lo, hi) = ((b[0] - p) as f64, (b[1] - p) as f64);
         match dp {
             0 if lo <= 0.0 && hi > 0.0 => (f64::NEG_INFINITY, f64::INFINITY),
             0 => (0.0, 0.0),
@@ -188,13 +206,14 @@ fn reach(u: i64, du: i64, iw: i64, v: i64, dv: i64, ih: i64, w: usize) -> (usize
             d => (hi / d as f64, lo / d as f64),
         }
     };
-    let (a0, b0) = span(u, du, iw);
-    let (a1, b1) = span(v, dv, ih);
+    let (a0, b0) = span(u, du, bu);
+    let (a1, b1) = span(v, dv, bv);
     let wf = w as f64;
     let mut xa = libm::ceil(a0.max(a1)).clamp(0.0, wf) as usize;
     let mut xb = libm::ceil(b0.min(b1)).clamp(0.0, wf) as usize;
     xb = xb.max(xa);
-    let at = |x: usize| reaches(u + x as i64 * du, v + x as i64 * dv, iw, ih);
+    let within = |p: i64, b: [i64; 2]| p >= b[0] && p < b[1];
+    let at = |x: usize| within(u + x as i64 * du, bu) && within(v + x as i64 * dv, bv);
     while xa > 0 && at(xa - 1) {
         xa -= 1;
     }
@@ -233,48 +252,22 @@ fn project(n: [i64; 3]) -> Option<(i64, i64)> {
     Some((div(n[0])?, div(n[1])?))
 }
 
-/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, as `convert` of
-/// the Q15 sample (`inner` where all four taps are inside); `zero` outside.
-#[allow(clippy::too_many_arguments)]
+/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, as [`Texel::convert`] of
+/// the Q15 sample ([`Texel::inner`] where all four taps are inside); `zero` outside.
 #[inline(always)]
-fn sample<T: Copy>(
-    px: &[Rgba],
-    iw: i64,
-    ih: i64,
-    u: i64,
-    v: i64,
-    zero: T,
-    convert: &impl Fn([u32; 4]) -> T,
-    inner: &impl Fn(&[Rgba; 2], &[Rgba; 2], [u32; 4]) -> T,
-) -> T {
-    let one = 1i64 << FRAC;
+fn sample<T: Texel>(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64, zero: T) -> T {
     let u0 = u >> FRAC;
     let v0 = v >> FRAC;
     if !reaches(u, v, iw, ih) {
         return zero;
     }
-    let fu = ((one - (u & (one - 1))) >> 1) as u32;
-    let fv = ((one - (v & (one - 1))) >> 1) as u32;
-    let wts = fixed::bilinear_weights(fu, fv);
-    // Inside: all four taps exist; two 2-pixel reads, no per-tap checks.
+    // Inside: all four taps exist.
     if u0 >= 0 && v0 >= 0 && u0 + 1 < iw && v0 + 1 < ih {
-        let base = (v0 * iw + u0) as usize;
-        let w = iw as usize;
-        let top = px
-            .get(base..base + 2)
-            .and_then(|t| <&[Rgba; 2]>::try_from(t).ok());
-        let bot = px
-            .get(base + w..base + w + 2)
-            .and_then(|b| <&[Rgba; 2]>::try_from(b).ok());
-        if let (Some(top), Some(bot)) = (top, bot) {
-            // Empty background (most of a frame around a small volume) needs no weights.
-            let any = |p: &Rgba| p.iter().fold(0, |a, &c| a | c);
-            if any(&top[0]) | any(&top[1]) | any(&bot[0]) | any(&bot[1]) == 0 {
-                return zero;
-            }
-            return inner(top, bot, wts);
+        if let Some(t) = inside(px, iw as usize, u, v, zero) {
+            return t;
         }
     }
+    let wts = weights(u, v);
     // At the image's edge, the taps outside it read as zero.
     let tap = |tu: i64, tv: i64| -> Rgba {
         let inside = tu >= 0 && tv >= 0 && tu < iw && tv < ih;
@@ -286,7 +279,51 @@ fn sample<T: Copy>(
     };
     let top = [tap(u0, v0), tap(u0 + 1, v0)];
     let bot = [tap(u0, v0 + 1), tap(u0 + 1, v0 + 1)];
-    convert(interior(&top, &bot, wts))
+    T::convert(interior(&top, &bot, wts))
+}
+
+/// The bilinear weights of the 16.16 position `(u, v)`.
+#[inline(always)]
+fn weights(u: i64, v: i64) -> [u32; 4] {
+    let one = 1i64 << FRAC;
+    let fu = ((one - (u & (one - 1))) >> 1) as u32;
+    let fv = ((one - (v & (one - 1))) >> 1) as u32;
+    fixed::bilinear_weights(fu, fv)
+}
+
+/// [`Texel::inner`] of the four taps of the 16.16 position `(u, v)` in the intermediate image
+/// `px`, `iw` pixels wide, where they all lie inside it (`None` if they do not): one
+/// bounds check for all four.
+#[inline(always)]
+fn inside<T: Texel>(px: &[Rgba], iw: usize, u: i64, v: i64, zero: T) -> Option<T> {
+    let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
+    let q = px.get(base..base.checked_add(iw + 2)?)?;
+    let taps = [pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])];
+    // Empty background (most of a frame around a small volume) needs no weights.
+    if taps[0] | taps[1] | taps[2] | taps[3] == 0 {
+        return Some(zero);
+    }
+    Some(T::inner(taps, weights(u, v)))
+}
+
+/// The pixels `out` of a row whose four taps all lie inside the intermediate image `px`
+/// (`iw` pixels wide), the first at the 16.16 position `u.0, v.0` and each next one a
+/// step `(u.1, v.1)` further: [`sample`] without its tests at the image's edge.
+#[inline(always)]
+fn inside_run<T: Texel>(
+    px: &[Rgba],
+    iw: usize,
+    (mut u, du): (i64, i64),
+    (mut v, dv): (i64, i64),
+    out: &mut [T],
+    zero: T,
+) {
+    for o in out {
+        // `None` only if the caller's interval were wrong: the pixel stays blank.
+        *o = inside(px, iw, u, v, zero).unwrap_or(zero);
+        u += du;
+        v += dv;
+    }
 }
 
 /// The Q15 bilinear sample of the taps `top` and `bot` (left, right) with weights `w`
@@ -303,6 +340,32 @@ fn interior(top: &[Rgba; 2], bot: &[Rgba; 2], w: [u32; 4]) -> [u32; 4] {
     acc.map(|a| (a + (1 << 14)) >> 15)
 }
 
+/// [`interior`] of four [`pack`]ed taps: top left, top right, bottom left, bottom right.
+#[inline(always)]
+fn interior_packed(taps: [u64; 4], w: [u32; 4]) -> [u32; 4] {
+    let [tl, tr, bl, br] = taps.map(unpack);
+    interior(&[tl, tr], &[bl, br], w)
+}
+
+/// The four channels of `p` in one word, channel 0 lowest. On little-endian targets
+/// that is the pixel's memory as it is: one 64-bit load. Written as shifts, LLVM kept
+/// sixteen 16-bit loads per sample and spilled them (a fifth of the warp's
+/// instructions).
+#[inline(always)]
+fn pack(p: &Rgba) -> u64 {
+    if cfg!(target_endian = "little") {
+        bytemuck::cast(*p)
+    } else {
+        p[0] as u64 | (p[1] as u64) << 16 | (p[2] as u64) << 32 | (p[3] as u64) << 48
+    }
+}
+
+/// The inverse of [`pack`].
+#[inline(always)]
+fn unpack(x: u64) -> Rgba {
+    core::array::from_fn(|c| (x >> (16 * c)) as u16)
+}
+
 /// Two channels per 64-bit word, 32 bits each: `c0 | c2 << 32` and `c1 | c3 << 32`.
 const LANES: u64 = 0x0000_FFFF_0000_FFFF;
 
@@ -312,21 +375,11 @@ const LANES: u64 = 0x0000_FFFF_0000_FFFF;
 /// the per-channel one. A channel above `ONE` (which no compositor writes) takes the
 /// per-channel path, which clamps it.
 #[inline(always)]
-fn interior_u8(top: &[Rgba; 2], bot: &[Rgba; 2], w: [u32; 4]) -> [u8; 4] {
-    let split = |p: &Rgba| -> (u64, u64) {
-        let x = p[0] as u64 | (p[1] as u64) << 16 | (p[2] as u64) << 32 | (p[3] as u64) << 48;
-        (x & LANES, (x >> 16) & LANES)
-    };
-    let taps = [
-        split(&top[0]),
-        split(&top[1]),
-        split(&bot[0]),
-        split(&bot[1]),
-    ];
+fn interior_u8(taps: [u64; 4], w: [u32; 4]) -> [u8; 4] {
     let (mut even, mut odd) = (0u64, 0u64);
-    for (&(e, o), &wt) in taps.iter().zip(w.iter()) {
-        even += wt as u64 * e;
-        odd += wt as u64 * o;
+    for (&x, &wt) in taps.iter().zip(w.iter()) {
+        even += wt as u64 * (x & LANES);
+        odd += wt as u64 * ((x >> 16) & LANES);
     }
     const HALF: u64 = 1 << 14 | 1 << 46;
     let even = ((even + HALF) >> 15) & LANES;
@@ -334,7 +387,7 @@ fn interior_u8(top: &[Rgba; 2], bot: &[Rgba; 2], w: [u32; 4]) -> [u8; 4] {
     // A lane above 0x8000 sets bit 16 of its lane when 0x7FFF is added.
     const OVER: u64 = 0x7FFF | 0x7FFF << 32;
     if ((even + OVER) | (odd + OVER)) & (1 << 16 | 1 << 48) != 0 {
-        return interior(top, bot, w).map(fixed::to_u8);
+        return interior_packed(taps, w).map(fixed::to_u8);
     }
     const BYTES: u64 = 0xFF | 0xFF << 32;
     let to8 = |x: u64| ((x * 255 + HALF) >> 15) & BYTES;
@@ -347,7 +400,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_reached_interval_is_exactly_the_pixels_that_reach_the_image() {
+    fn the_intervals_are_exactly_the_pixels_that_reach_the_image_and_lie_inside_it() {
         let mut rand = crate::xorshift(0x2545_f491_4f6c_dd1d);
         let mut next = |m: i64| (rand() >> 11) as i64 % (2 * m + 1) - m;
         let one = 1i64 << FRAC;
@@ -362,10 +415,17 @@ mod tests {
                 _ => next(3 * one),
             };
             let (du, dv) = (step(&mut next), step(&mut next));
-            let (xa, xb) = reach(u, du, iw, v, dv, ih, w);
+            let (xa, xb) = reach(u, du, v, dv, [-one, iw * one], [-one, ih * one], w);
+            let box_in = [[0, (iw - 1) * one], [0, (ih - 1) * one]];
+            let (xi, xj) = reach(u, du, v, dv, box_in[0], box_in[1], w);
             for x in 0..w {
-                let r = reaches(u + x as i64 * du, v + x as i64 * dv, iw, ih);
+                let (pu, pv) = (u + x as i64 * du, v + x as i64 * dv);
+                let r = reaches(pu, pv, iw, ih);
                 assert_eq!(r, x >= xa && x < xb, "round {round}: x {x} in {xa}..{xb}");
+                // All four taps inside, as sample tests it.
+                let (u0, v0) = (pu >> FRAC, pv >> FRAC);
+                let all = u0 >= 0 && v0 >= 0 && u0 + 1 < iw && v0 + 1 < ih;
+                assert_eq!(all, x >= xi && x < xj, "round {round}: x {x} in {xi}..{xj}");
             }
         }
     }
@@ -389,7 +449,9 @@ mod tests {
             let bot = [px(), px()];
             let w = fixed::bilinear_weights(next(ONE), next(ONE));
             let want = interior(&top, &bot, w).map(fixed::to_u8);
-            assert_eq!(interior_u8(&top, &bot, w), want, "{top:?} {bot:?} {w:?}");
+            let taps = [pack(&top[0]), pack(&top[1]), pack(&bot[0]), pack(&bot[1])];
+            assert_eq!(interior_u8(taps, w), want, "{top:?} {bot:?} {w:?}");
+            assert_eq!(taps.map(unpack), [top[0], top[1], bot[0], bot[1]]);
         }
     }
 }
