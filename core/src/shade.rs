@@ -223,7 +223,8 @@ impl ShadeTable {
         let unit = |code: usize| normal::UNIT.get(code);
         if let (true, [one]) = (grey, &lights[..]) {
             // One white light, the usual case: a slice of known length lets the
-            // compiler drop the loop over lights (callgrind: 108 -> 76 instructions a code).
+            // compiler drop the loop over lights (callgrind: 108 -> 76 instructions a
+            // code).
             let one = core::slice::from_ref(one);
             let (units, zero) = self.entries.split_at_mut(normal::DIRECTIONS);
             for (e, n) in units.iter_mut().zip(normal::UNIT.iter()) {

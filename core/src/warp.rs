@@ -89,7 +89,8 @@ pub fn warp_rows_q15(
 }
 
 /// An output pixel of the warp. A trait rather than a pair of closures: the closures
-/// were called out of line from the pixel loop (a sixth of a 512² frame on brainsmall).
+/// were called out of line from the pixel loop (a tenth of `perf`'s samples of a
+/// brainsmall run at 512²).
 trait Texel: Copy {
     /// The pixel of a Q15 sample.
     fn convert(q: [u32; 4]) -> Self;
@@ -252,8 +253,9 @@ fn project(n: [i64; 3]) -> Option<(i64, i64)> {
     Some((div(n[0])?, div(n[1])?))
 }
 
-/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, as [`Texel::convert`] of
-/// the Q15 sample ([`Texel::inner`] where all four taps are inside); `zero` outside.
+/// Bilinear reconstruction of the intermediate image at 16.16 `(u, v)`, as
+/// [`Texel::convert`] of the Q15 sample ([`Texel::inner`] where all four taps are
+/// inside); `zero` outside.
 #[inline(always)]
 fn sample<T: Texel>(px: &[Rgba], iw: i64, ih: i64, u: i64, v: i64, zero: T) -> T {
     let u0 = u >> FRAC;
@@ -291,9 +293,9 @@ fn weights(u: i64, v: i64) -> [u32; 4] {
     fixed::bilinear_weights(fu, fv)
 }
 
-/// [`Texel::inner`] of the four taps of the 16.16 position `(u, v)` in the intermediate image
-/// `px`, `iw` pixels wide, where they all lie inside it (`None` if they do not): one
-/// bounds check for all four.
+/// [`Texel::inner`] of the four taps of the 16.16 position `(u, v)` in the intermediate
+/// image `px`, `iw` pixels wide, where they all lie inside it (`None` if they do not):
+/// one bounds check for all four.
 #[inline(always)]
 fn inside<T: Texel>(px: &[Rgba], iw: usize, u: i64, v: i64, zero: T) -> Option<T> {
     let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
