@@ -220,27 +220,14 @@ impl ShadeTable {
         let grey = lights
             .iter()
             .all(|l| l.kd.iter().all(|&k| k == l.kd[0]) && l.ks.iter().all(|&k| k == l.ks[0]));
-        let unit = |code: usize| normal::UNIT.get(code);
-        if let (true, [one]) = (grey, &lights[..]) {
+        let e = &mut self.entries;
+        match (grey, &lights[..]) {
             // One white light, the usual case: a slice of known length lets the
             // compiler drop the loop over lights (callgrind: 108 -> 76 instructions a
             // code).
-            let one = core::slice::from_ref(one);
-            let (units, zero) = self.entries.split_at_mut(normal::DIRECTIONS);
-            for (e, n) in units.iter_mut().zip(normal::UNIT.iter()) {
-                *e = entry::<1>(Some(n), one, spec, ka);
-            }
-            for e in zero {
-                *e = entry::<1>(None, one, spec, ka);
-            }
-        } else if grey {
-            for (code, e) in self.entries.iter_mut().enumerate() {
-                *e = entry::<1>(unit(code), &lights, spec, ka);
-            }
-        } else {
-            for (code, e) in self.entries.iter_mut().enumerate() {
-                *e = entry::<3>(unit(code), &lights, spec, ka);
-            }
+            (true, [one]) => fill_entries::<1>(e, core::slice::from_ref(one), spec, ka),
+            (true, all) => fill_entries::<1>(e, all, spec, ka),
+            (false, all) => fill_entries::<3>(e, all, spec, ka),
         }
         Ok(())
     }
@@ -268,6 +255,24 @@ struct L {
     h: [i32; 3],
     kd: [u32; 3],
     ks: [u32; 3],
+}
+
+/// Every entry of a shading table under `lights` ([`entry`] per code, `N` channels):
+/// the direction codes from the normal table, then the zero-gradient code.
+#[inline(always)]
+fn fill_entries<const N: usize>(
+    entries: &mut [ShadeEntry; normal::CODES],
+    lights: &[L],
+    spec: &[u32; SPEC_STEPS + 1],
+    ka: u32,
+) {
+    let (units, zero) = entries.split_at_mut(normal::DIRECTIONS);
+    for (e, n) in units.iter_mut().zip(normal::UNIT.iter()) {
+        *e = entry::<N>(Some(n), lights, spec, ka);
+    }
+    for e in zero {
+        *e = entry::<N>(None, lights, spec, ka);
+    }
 }
 
 /// The entry for unit normal `n` (`None`: the zero-gradient code, full diffuse light)

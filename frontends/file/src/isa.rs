@@ -4,8 +4,9 @@
 //! (SSE2), for x86-64-v3 (AVX2) and for x86-64-v4 (AVX-512). All three run the same
 //! integer code, so their images are bit-identical; the wider builds are faster because
 //! the per-pixel "over" kernel multiplies 32-bit lanes, which SSE2 cannot do in one
-//! vector instruction, and because they prefetch the rows ahead instead of loading them. The core may not call the wider builds itself (it has no way to
-//! ask the CPU and forbids `unsafe`), so this module asks at run time and dispatches.
+//! vector instruction, and because they prefetch the rows ahead instead of loading
+//! them. The core may not call the wider builds itself (it has no way to ask the CPU and
+//! forbids `unsafe`), so this module asks at run time and dispatches.
 
 use shearwarp_core::composite::{Intermediate, Rgba, SliceTables};
 use shearwarp_core::render::{self, Frame};
