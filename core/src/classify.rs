@@ -267,6 +267,16 @@ pub struct ColorTf<'a> {
 /// Colour lookup table indexed by the 8-bit quantised scalar, Q15 RGB.
 pub type ColorTable = [[u16; 3]; 256];
 
+/// A [`ColorTable`] padded to four lanes (the fourth is zero and never used), the form
+/// the compositor reads: one 8-byte load a voxel, which the x86 compositors shade as one
+/// four-lane vector with the padded shading entry ([`crate::shade::ShadeEntry`]).
+pub type ColorLanes = [[u16; 4]; 256];
+
+/// `t` padded to four lanes.
+pub fn color_lanes(t: &ColorTable) -> ColorLanes {
+    core::array::from_fn(|q| [t[q][0], t[q][1], t[q][2], 0])
+}
+
 impl<'a> ColorTf<'a> {
     /// Validates breakpoints: strictly increasing finite values, channels in `[0, 1]`.
     pub fn new(points: &'a [(f64, [f64; 3])]) -> Result<Self, Error> {

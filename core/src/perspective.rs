@@ -263,7 +263,16 @@ pub(crate) fn composite_slice(
                     out[a..b].fill([0; 4]);
                 }
                 let (runs, voxels) = slice.scanline(j as usize);
-                row.fill(runs, voxels, tables, ONE, j, None, None);
+                row.fill(
+                    runs,
+                    voxels,
+                    tables,
+                    ONE,
+                    j,
+                    None,
+                    None,
+                    &crate::composite::Portable,
+                );
                 // The band's scanlines that read row j: a pixel opaque in all of them is
                 // never composited again, so its filtered value is not needed.
                 let readers = if tables.mode == Mode::Composite {

@@ -5,7 +5,7 @@
 //! const-generic block ([`StaticWorkspace`]) whose size is fixed at compile time for a
 //! maximum volume and image.
 
-use crate::classify::{ColorTable, Voxel};
+use crate::classify::{ColorLanes, ColorTable, Voxel};
 use crate::composite::{self, Intermediate, Mode, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, Error};
@@ -119,6 +119,8 @@ pub struct Frame {
     pub view: Factorization,
     /// Opacity correction for this view's sample distance, Q15 per stored opacity.
     pub opacity: [u16; 256],
+    /// The settings' colour table in the compositor's four-lane form.
+    pub color: ColorLanes,
     /// Early-ray-termination threshold, Q15.
     pub ert: u32,
     /// Compositing mode.
@@ -243,6 +245,7 @@ impl Frame {
             shadow,
             depth,
             opacity: crate::classify::opacity_correction(view.step_ratio),
+            color: crate::classify::color_lanes(settings.color),
             view,
             ert,
             mode: settings.mode,
@@ -253,14 +256,13 @@ impl Frame {
     /// are on).
     pub fn tables<'a>(
         &'a self,
-        color: &'a ColorTable,
         shade: &'a ShadeTable,
         shade0: Option<&'a ShadeTable>,
     ) -> SliceTables<'a> {
         SliceTables {
             shade0: if self.shadow.is_some() { shade0 } else { None },
             opacity: &self.opacity,
-            color,
+            color: &self.color,
             shade,
             mode: self.mode,
             ert: self.ert,
@@ -304,7 +306,7 @@ macro_rules! prefetch {
 /// inlined, so the attributes (a `target_feature` list) decide how its loops compile.
 /// `$warm` is how it warms the cache for the rows ahead.
 macro_rules! band_compositor {
-    ($(#[$attr:meta])* $name:ident, $warm:expr) => {
+    ($(#[$attr:meta])* $name:ident, $kern:expr) => {
         $(#[$attr])*
         pub fn $name<S: SliceSource>(
             source: &mut S,
@@ -315,7 +317,7 @@ macro_rules! band_compositor {
             shadow: Option<(&mut [u16], &mut [u16])>,
             keep_going: &mut dyn FnMut() -> bool,
         ) -> Result<bool, Error> {
-            band(source, frame, tables, img, rows, shadow, keep_going, $warm)
+            band(source, frame, tables, img, rows, shadow, keep_going, $kern)
         }
     };
 }
@@ -327,18 +329,20 @@ band_compositor! {
     /// band's pixels hold the slices composited so far, front to back: a usable,
     /// incomplete image).
     composite_band_until,
-    &composite::touch
+    &composite::Portable
 }
 
 band_compositor! {
     /// [`composite_band_until`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT,
-    /// POPCNT): the compositing and shading loops are the same integer code, so the
-    /// image is bit-identical, but the compiler may use 256-bit vectors and 32-bit
-    /// vector multiplies (baseline x86-64, SSE2, has no 32-bit vector multiply). It
-    /// also warms the cache for the rows ahead with prefetch instructions instead of
-    /// loads, which the core does not wait for (hires brain, 256², alternating runs:
-    /// 18.2–18.9 → 15.0–15.8 ms a frame). `target_feature` functions are safe to define
-    /// but a caller must know the CPU has the features.
+    /// POPCNT): the compositing loops are the same integer code, so the image is
+    /// bit-identical, but the compiler may use 256-bit vectors and 32-bit vector
+    /// multiplies (baseline x86-64, SSE2, has no 32-bit vector multiply). It also warms
+    /// the cache for the rows ahead with prefetch instructions instead of loads, which
+    /// the core does not wait for (hires brain, 256², alternating runs: 18.2–18.9 →
+    /// 15.0–15.8 ms a frame), and shades a voxel's three channels as one vector with a
+    /// bit-identical SSE4.1 kernel (`premultiply_sse41` in [`composite`]; spheres256,
+    /// callgrind: 13 % fewer instructions a frame). `target_feature` functions are safe
+    /// to define but a caller must know the CPU has the features.
     ///
     /// # Safety
     ///
@@ -348,7 +352,10 @@ band_compositor! {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt")]
     composite_band_until_x86_v3,
-    &|v: &[Voxel]| prefetch!(v)
+    &composite::With(
+        |v: &[Voxel]| prefetch!(v),
+        composite::premultiply_sse41!()
+    )
 }
 
 band_compositor! {
@@ -363,7 +370,10 @@ band_compositor! {
         enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd"
     )]
     composite_band_until_x86_v4,
-    &|v: &[Voxel]| prefetch!(v)
+    &composite::With(
+        |v: &[Voxel]| prefetch!(v),
+        composite::premultiply_sse41!()
+    )
 }
 
 /// The body of the `composite_band_until` variants, inlined into each so that it and the
@@ -378,7 +388,7 @@ fn band<S: SliceSource>(
     rows: &mut [Rgba],
     mut shadow: Option<(&mut [u16], &mut [u16])>,
     keep_going: &mut dyn FnMut() -> bool,
-    warm: &impl Fn(&[Voxel]),
+    kern: &impl composite::Kernels,
 ) -> Result<bool, Error> {
     let view = &frame.view;
     let row_len = composite::rows_needed(view);
@@ -434,7 +444,7 @@ fn band<S: SliceSource>(
                             rows,
                             Some(&look),
                             true,
-                            warm,
+                            kern,
                         )?;
                         shadow::accumulate_slice(alpha, slice, k, sf, srows)
                     },
@@ -447,7 +457,7 @@ fn band<S: SliceSource>(
                     #[cfg_attr(target_arch = "x86_64", inline(always))]
                     |slice| {
                         composite::composite_slice_in(
-                            img, slice, k, view, tables, rows, None, true, warm,
+                            img, slice, k, view, tables, rows, None, true, kern,
                         )
                     },
                 )??;
@@ -471,7 +481,7 @@ pub fn render<S: SliceSource, P: PixelSink>(
     let grid = source.grid();
     let sh0 = ws.shadow.as_mut().map(|s| &mut *s.shade0);
     let frame = Frame::new(&grid, camera, settings, ws.shade, sh0)?;
-    render_frame(source, &frame, settings.color, ws, sink)
+    render_frame(source, &frame, ws, sink)
 }
 
 /// Renders `source` for a frame built beforehand (with `ws.shade`, and the shadow
@@ -482,7 +492,6 @@ pub fn render<S: SliceSource, P: PixelSink>(
 pub fn render_frame<S: SliceSource, P: PixelSink>(
     source: &mut S,
     frame: &Frame,
-    color: &ColorTable,
     ws: &mut Workspace<'_>,
     sink: &mut P,
 ) -> Result<(), Error> {
@@ -492,7 +501,7 @@ pub fn render_frame<S: SliceSource, P: PixelSink>(
         Some(s) => (Some((&mut *s.alpha, &mut *s.rows)), Some(&*s.shade0)),
         None => (None, None),
     };
-    let tables = frame.tables(color, ws.shade, shade0);
+    let tables = frame.tables(ws.shade, shade0);
     let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
     composite_band(source, frame, &tables, &mut img, ws.rows, shadow_bufs)?;
     warp::warp(img.pixels(), &frame.view, ws.out_row, sink)
@@ -570,9 +579,8 @@ mod tests {
                 return [0; 4];
             }
             let a = tables.opacity[v.opacity as usize] as u32;
-            let c = tables
-                .shade
-                .shade(v.normal, tables.color[v.scalar as usize]);
+            let [r, g, b, _] = tables.color[v.scalar as usize];
+            let c = tables.shade.shade(v.normal, [r, g, b]);
             [
                 fixed::mul(c[0], a) as u16,
                 fixed::mul(c[1], a) as u16,
@@ -701,9 +709,10 @@ mod tests {
                 }
                 // Dense path with the same tables.
                 let opacity = classify::opacity_correction(view.step_ratio);
+                let lanes = classify::color_lanes(&color);
                 let tables = SliceTables {
                     opacity: &opacity,
-                    color: &color,
+                    color: &lanes,
                     shade: &shade,
                     mode: Mode::Composite,
                     ert: if ert >= 1.0 {

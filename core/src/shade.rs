@@ -101,18 +101,23 @@ fn norm(v: [f64; 3]) -> f64 {
 /// The shading of one normal code, Q15 RGB. The diffuse factor can exceed one (bright
 /// lights), so it is stored with a cap of 2.0 (Q15 65535); the product with a colour is
 /// clamped at composite time.
+///
+/// Each half is padded to four lanes (the fourth is zero and never used): an entry is
+/// one aligned 16-byte load, and the x86 compositors shade a voxel's channels as one
+/// four-lane vector ([`crate::classify::ColorLanes`] is padded the same way).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(C, align(16))]
 pub struct ShadeEntry {
-    /// `D`: ambient plus diffuse.
-    pub diffuse: [u16; 3],
-    /// `S`: specular.
-    pub specular: [u16; 3],
+    /// `D`: ambient plus diffuse, RGB and padding.
+    pub diffuse: [u16; 4],
+    /// `S`: specular, RGB and padding.
+    pub specular: [u16; 4],
 }
 
 /// Diffuse and specular factors per normal code. Both halves of a code sit side by side
-/// (12 bytes), so shading a voxel reads one place of the 96 KiB table instead of two:
-/// the table outgrows a first-level cache, and a lazily shaded voxel's normal is close
-/// to random, so each read is usually a miss.
+/// (16 bytes, one aligned load), so shading a voxel reads one place of the 128 KiB table
+/// instead of two: the table outgrows a first-level cache, and a lazily shaded voxel's
+/// normal is close to random, so each read is usually a miss.
 #[derive(Clone, Debug)]
 pub struct ShadeTable {
     /// The entry per code.
@@ -164,8 +169,8 @@ impl ShadeTable {
     /// A table that leaves colours unchanged (`D = 1`, `S = 0`): shading off.
     pub const UNSHADED: ShadeTable = ShadeTable {
         entries: [ShadeEntry {
-            diffuse: [ONE as u16; 3],
-            specular: [0; 3],
+            diffuse: [ONE as u16, ONE as u16, ONE as u16, 0],
+            specular: [0; 4],
         }; normal::CODES],
         spec: SpecTable::EMPTY,
     };
@@ -230,6 +235,12 @@ impl ShadeTable {
             (false, all) => fill_entries::<3>(e, all, spec, ka),
         }
         Ok(())
+    }
+
+    /// The entry for `code`, by reference (codes past the table read its last entry).
+    #[inline(always)]
+    pub fn entry_ref(&self, code: u16) -> &ShadeEntry {
+        &self.entries[(code as usize).min(normal::CODES - 1)]
     }
 
     /// `c·D + S` per channel for `code`, unclamped (up to about 3·ONE).
@@ -323,9 +334,10 @@ fn entry<const N: usize>(
         sp = [sp[0]; 3];
     }
     let cap = |x: u32| x.min(u16::MAX as u32) as u16;
+    let sat = |x: u32| x.min(ONE) as u16;
     ShadeEntry {
-        diffuse: d.map(cap),
-        specular: sp.map(|x| x.min(ONE) as u16),
+        diffuse: [cap(d[0]), cap(d[1]), cap(d[2]), 0],
+        specular: [sat(sp[0]), sat(sp[1]), sat(sp[2]), 0],
     }
 }
 

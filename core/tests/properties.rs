@@ -400,7 +400,7 @@ fn intermediate<S: SliceSource>(
         Err(e) => return Err(TestCaseError::fail(format!("frame failed: {e:?}"))),
     };
     let [iw, ih] = frame.view.intermediate;
-    let tables = frame.tables(s.color, &b.shade, Some(&b.shade0));
+    let tables = frame.tables(&b.shade, Some(&b.shade0));
     let mut img = Intermediate::new(iw, ih, &mut b.pixels, &mut b.links)
         .map_err(|e| TestCaseError::fail(format!("intermediate: {e:?}")))?;
     let shadow = Some((&mut b.shadow_alpha[..], &mut b.shadow_rows[..]));
@@ -481,7 +481,7 @@ proptest! {
             Err(e) => return Err(TestCaseError::fail(format!("frame failed: {e:?}"))),
         };
         let [iw, ih] = frame.view.intermediate;
-        let tables = frame.tables(s.color, &shade, None);
+        let tables = frame.tables(&shade, None);
         let mut rows = vec![[0u16; 4]; composite::rows_needed(&frame.view)];
         let mut whole = vec![[0u16; 4]; iw * ih];
         let mut links = vec![0; iw * ih];

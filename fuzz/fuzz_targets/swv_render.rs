@@ -237,7 +237,7 @@ fn run(data: &[u8]) {
             width: IMG,
             pixels: &mut b.image,
         };
-        if render_frame(&mut src, &frame, &look.color, &mut ws, &mut sink).is_ok() {
+        if render_frame(&mut src, &frame, &mut ws, &mut sink).is_ok() {
             for p in b.image.iter() {
                 assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
             }

@@ -229,7 +229,7 @@ fn integrated_opacity(
     };
     let mut shade = ShadeTable::UNSHADED;
     let frame = Frame::new(&enc.grid, cam, &settings, &mut shade, None).unwrap();
-    let tables = frame.tables(&color, &shade, None);
+    let tables = frame.tables(&shade, None);
     let [w, h] = frame.view.intermediate;
     let mut px = vec![[0u16; 4]; w * h];
     let mut links = vec![0; w * h];

@@ -136,3 +136,130 @@ pub fn composite_band_until<S: SliceSource>(
         _ => render::composite_band_until(source, frame, tables, img, rows, shadow, keep_going),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shearwarp_core::classify::{Grid, Voxel};
+    use shearwarp_core::composite::Mode;
+    use shearwarp_core::depth::DepthCue;
+    use shearwarp_core::render::Settings;
+    use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
+    use shearwarp_core::shade::{ShadeEntry, ShadeTable};
+    use shearwarp_core::source::RleVolume;
+    use shearwarp_core::view::{self, Camera};
+
+    /// The wider builds replace the per-voxel shading step with vector code; with every
+    /// table entry drawn from the whole `u16` range (colours, shading factors and
+    /// opacities a real lighting never produces, normal codes past the table) they must
+    /// still give the baseline's pixels bit for bit, with and without depth cueing.
+    #[test]
+    fn wider_builds_shade_extreme_tables_like_the_baseline() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let dims = [19, 23, 17];
+        let grid = Grid::new(dims, [1.0, 1.2, 0.9]).unwrap();
+        let dense: Vec<Voxel> = (0..grid.voxel_count())
+            .map(|_| {
+                let r = rnd();
+                Voxel {
+                    // A third transparent, so runs of both kinds occur.
+                    opacity: if r % 3 == 0 { 0 } else { (r >> 8) as u8 },
+                    scalar: (r >> 16) as u8,
+                    normal: (r >> 24) as u16 % 8400,
+                }
+            })
+            .collect();
+        let store: Vec<(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)> = Axis::ALL
+            .iter()
+            .map(|&a| {
+                let sz = rle::measure(&dense, &grid, a, 0).unwrap();
+                let mut r = vec![0u8; sz.runs];
+                let mut v = vec![Voxel::default(); sz.voxels];
+                let mut s = vec![ScanIndex::default(); sz.scans];
+                rle::encode(&dense, &grid, a, 0, &mut r, &mut v, &mut s).unwrap();
+                (r, v, s)
+            })
+            .collect();
+        let axes: Vec<RleAxis<'_>> = Axis::ALL
+            .iter()
+            .map(|&a| {
+                let (r, v, s) = &store[a as usize];
+                RleAxis::new(dims, a, r, v, s).unwrap()
+            })
+            .collect();
+        let color = [[0u16; 3]; 256];
+        let mut shade = Box::new(ShadeTable::UNSHADED);
+        let lane = |x: u64| -> [u16; 4] { core::array::from_fn(|c| (x >> (16 * c)) as u16) };
+        for e in shade.entries.iter_mut() {
+            *e = ShadeEntry {
+                diffuse: lane(rnd()),
+                specular: lane(rnd()),
+            };
+        }
+        let levels: Vec<Isa> = Isa::ALL.into_iter().filter(|i| i.available()).collect();
+        for depth_cue in [
+            None,
+            Some(DepthCue {
+                front: 0.9,
+                density: 2.0,
+            }),
+        ] {
+            let settings = Settings {
+                mode: Mode::Composite,
+                color: &color,
+                lighting: None,
+                ert_threshold: 0.97,
+                depth_cue,
+                shadows: false,
+            };
+            let cam = Camera {
+                rotate_x: 21.0,
+                rotate_y: 38.0,
+                width: 48,
+                height: 48,
+            };
+            let mut unused = Box::new(ShadeTable::UNSHADED);
+            let mut frame = Frame::new(&grid, &cam, &settings, &mut unused, None).unwrap();
+            for (o, c) in frame.opacity.iter_mut().zip(frame.color.iter_mut()) {
+                // Opacities stay within one, as the compositor requires of its tables.
+                *o = (rnd() % ((1 << 15) + 1)) as u16;
+                *c = lane(rnd());
+            }
+            let tables = frame.tables(&shade, None);
+            let [iw, ih] = frame.view.intermediate;
+            let pix = view::max_intermediate_pixels(dims);
+            let images: Vec<Vec<Rgba>> = levels
+                .iter()
+                .map(|&isa| {
+                    let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+                    let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
+                    let mut rows = vec![[0u16; 4]; 64];
+                    let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
+                    let go = &mut || true;
+                    composite_band_until(
+                        isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
+                    )
+                    .unwrap();
+                    img.pixels().to_vec()
+                })
+                .collect();
+            assert!(
+                images[0].iter().any(|p| p[3] != 0),
+                "nothing was composited"
+            );
+            for (isa, img) in levels.iter().zip(&images).skip(1) {
+                assert!(
+                    img == &images[0],
+                    "{} differs from the baseline",
+                    isa.name()
+                );
+            }
+        }
+    }
+}

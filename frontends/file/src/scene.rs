@@ -707,7 +707,7 @@ impl Renderer {
             )?,
         };
         let shade0 = look.shadows.then_some(&*self.shade0);
-        let tables = frame.tables(&look.color, &self.shade, shade0);
+        let tables = frame.tables(&self.shade, shade0);
         let [iw, ih] = frame.view.intermediate;
         let n = iw * ih;
         if self.pixels.len() < n {
