@@ -354,7 +354,8 @@ band_compositor! {
     composite_band_until_x86_v3,
     &composite::With(
         |v: &[Voxel]| prefetch!(v),
-        composite::premultiply_sse41!()
+        composite::premultiply_sse41!(),
+        composite::over_run_simd!(avx2)
     )
 }
 
@@ -372,7 +373,8 @@ band_compositor! {
     composite_band_until_x86_v4,
     &composite::With(
         |v: &[Voxel]| prefetch!(v),
-        composite::premultiply_sse41!()
+        composite::premultiply_sse41!(),
+        composite::over_run_simd!(avx512)
     )
 }
 

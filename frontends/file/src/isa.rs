@@ -149,10 +149,11 @@ mod tests {
     use shearwarp_core::source::RleVolume;
     use shearwarp_core::view::{self, Camera};
 
-    /// The wider builds replace the per-voxel shading step with vector code; with every
-    /// table entry drawn from the whole `u16` range (colours, shading factors and
-    /// opacities a real lighting never produces, normal codes past the table) they must
-    /// still give the baseline's pixels bit for bit, with and without depth cueing.
+    /// The wider builds replace the per-voxel shading step and the per-pixel "over" step
+    /// with vector code; with every table entry drawn from the whole `u16` range
+    /// (colours, shading factors and opacities a real lighting never produces, normal
+    /// codes past the table) they must still give the baseline's pixels bit for bit,
+    /// with and without depth cueing.
     #[test]
     fn wider_builds_shade_extreme_tables_like_the_baseline() {
         let mut seed = 0x2545_f491_4f6c_dd1du64;
@@ -227,8 +228,9 @@ mod tests {
             let mut unused = Box::new(ShadeTable::UNSHADED);
             let mut frame = Frame::new(&grid, &cam, &settings, &mut unused, None).unwrap();
             for (o, c) in frame.opacity.iter_mut().zip(frame.color.iter_mut()) {
-                // Opacities stay within one, as the compositor requires of its tables.
-                *o = (rnd() % ((1 << 15) + 1)) as u16;
+                // Opacities past one too: the vector kernels must match the scalar ones
+                // for any 16-bit input, not only for the tables a frame builds.
+                *o = rnd() as u16;
                 *c = lane(rnd());
             }
             let tables = frame.tables(&shade, None);
