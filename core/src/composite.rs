@@ -210,7 +210,8 @@ impl<'a> Spans<'a> {
 
 impl Iterator for Spans<'_> {
     type Item = (usize, usize);
-    #[inline]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
+    #[cfg_attr(not(target_arch = "x86_64"), inline)]
     fn next(&mut self) -> Option<(usize, usize)> {
         // Runs alternate transparent, visible; `next` is always at a transparent run.
         loop {
@@ -350,7 +351,10 @@ pub(crate) struct Needed<'a> {
 }
 
 impl<'a> Needed<'a> {
-    /// The scanlines `v0` and `v0 + 1`, where they lie in the band `img` holds.
+    /// The scanlines `v0` and `v0 + 1`, where they lie in the band `img` holds. Inlined
+    /// on x86-64, where as a call its six-word result went through the stack (see
+    /// [`RleSlice::scanline`]).
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn lines(img: &'a Intermediate<'_>, v0: i64, shift: i64) -> Self {
         let (lo, hi) = (img.row0 as i64, (img.row0 + img.rows) as i64);
         let at = |v: i64| (v >= lo && v < hi).then(|| img.opaque_line((v - lo) as usize));
