@@ -52,6 +52,114 @@ fn to_fixed(x: f64) -> i64 {
     libm::round(c * (1u64 << FRAC) as f64) as i64
 }
 
+/// [`inside_run`] for 8-bit output in AVX-512 vectors, four pixels a step: each pixel's
+/// four channels are four 32-bit lanes of one 128-bit quarter of a register. The
+/// weights are computed in the vector too: the fractional parts of the positions need
+/// only the low 16 bits, so the positions step in wrapping 32-bit lanes; the taps'
+/// addresses use the full positions. Bit-identical to [`inside_run`] with
+/// [`Texel::inner`] for `[u8; 4]`: every sum fits its lane (the weights sum to `ONE`,
+/// taps are at most `65535`), and the result is clamped to `ONE` before it is scaled to
+/// 8 bits, as [`fixed::to_u8`] does. A macro expanding to a closure, written inside the
+/// `target_feature` function that uses it (see
+/// [`crate::render::composite_band_until_x86_v3`] for why).
+#[cfg(target_arch = "x86_64")]
+macro_rules! inside_run_avx512 {
+    () => {
+        |px: &[Rgba],
+         iw: usize,
+         (u, du): (i64, i64),
+         (v, dv): (i64, i64),
+         out: &mut [[u8; 4]],
+         zero: [u8; 4]| {
+            use core::arch::x86_64::*;
+            let set1 = _mm512_set1_epi32;
+            let quads = out.len() / 4;
+            // Lane l holds pixel l / 4 of the step.
+            let pixel = _mm512_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3);
+            let start = |p: i64, dp: i64| {
+                _mm512_add_epi32(set1(p as i32), _mm512_mullo_epi32(pixel, set1(dp as i32)))
+            };
+            let (mut uu, mut vv) = (start(u, du), start(v, dv));
+            let (du4, dv4) = (set1((4 * du) as i32), set1((4 * dv) as i32));
+            let (frac, whole) = (set1(0xffff), set1(0x1_0000));
+            let (one, half, c255) = (set1(ONE as i32), set1(1 << 14), set1(255));
+            // Four pixels' taps, each `pack`ed, into 16 lanes. Built in registers: taps
+            // stored to an array and loaded back as one vector would wait for the stores.
+            let wide = |t: [u64; 4]| {
+                let t = t.map(|x| x as i64);
+                _mm512_cvtepu16_epi32(_mm256_set_epi64x(t[3], t[2], t[1], t[0]))
+            };
+            for (k, o) in out.chunks_exact_mut(4).enumerate() {
+                let x = 4 * k as i64;
+                // The four taps of pixel x + p, as `inside` reads them.
+                #[inline(always)]
+                fn fetch(px: &[Rgba], iw: usize, u: i64, v: i64) -> Option<[u64; 4]> {
+                    let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
+                    let q = px.get(base..base.checked_add(iw + 2)?)?;
+                    Some([pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])])
+                }
+                let at = |p: i64| fetch(px, iw, u + (x + p) * du, v + (x + p) * dv);
+                let (ta, tb, tc, td) = (at(0), at(1), at(2), at(3));
+                let taps = match (ta, tb, tc, td) {
+                    (Some(a), Some(b), Some(c), Some(d)) => Some([a, b, c, d]),
+                    _ => None,
+                };
+                let ok = taps.is_some();
+                let taps = taps.unwrap_or_default();
+                let any = taps.iter().flatten().fold(0, |acc, &t| acc | t);
+                // Tap k of the four pixels.
+                let tap = |k: usize| [taps[0][k], taps[1][k], taps[2][k], taps[3][k]];
+                if ok && any == 0 {
+                    // Empty background, as in `inside`.
+                    o.fill(zero);
+                } else if ok {
+                    // Weights, as `weights` computes them, in every lane of a pixel.
+                    let fu =
+                        _mm512_srli_epi32::<1>(_mm512_sub_epi32(whole, _mm512_and_si512(uu, frac)));
+                    let fv =
+                        _mm512_srli_epi32::<1>(_mm512_sub_epi32(whole, _mm512_and_si512(vv, frac)));
+                    // Lanes 2 and 3 of a pixel take the bottom row's share.
+                    let t = _mm512_mask_blend_epi32(0xcccc, fv, _mm512_sub_epi32(one, fv));
+                    let p = _mm512_srli_epi32::<15>(_mm512_mullo_epi32(t, fu));
+                    let w = _mm512_mask_blend_epi32(0xaaaa, p, _mm512_sub_epi32(t, p));
+                    let sum = _mm512_add_epi32(
+                        _mm512_add_epi32(
+                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0x00>(w), wide(tap(0))),
+                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0x55>(w), wide(tap(1))),
+                        ),
+                        _mm512_add_epi32(
+                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0xaa>(w), wide(tap(2))),
+                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0xff>(w), wide(tap(3))),
+                        ),
+                    );
+                    let q =
+                        _mm512_min_epu32(_mm512_srli_epi32::<15>(_mm512_add_epi32(sum, half)), one);
+                    let b = _mm512_srli_epi32::<15>(_mm512_add_epi32(
+                        _mm512_mullo_epi32(q, c255),
+                        half,
+                    ));
+                    let px4: [[u8; 4]; 4] = bytemuck::cast(_mm512_cvtepi32_epi8(b));
+                    o.copy_from_slice(&px4);
+                } else {
+                    // Only if the caller's interval were wrong: the portable loop decides.
+                    inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), o, zero);
+                }
+                uu = _mm512_add_epi32(uu, du4);
+                vv = _mm512_add_epi32(vv, dv4);
+            }
+            let x = 4 * quads as i64;
+            inside_run(
+                px,
+                iw,
+                (u + x * du, du),
+                (v + x * dv, dv),
+                &mut out[4 * quads..],
+                zero,
+            );
+        }
+    };
+}
+
 /// Warps the intermediate image `px` (the full `view.intermediate` size, row-major) into
 /// the final image, one row at a time through `sink`. `row` must hold at least the image
 /// width.
@@ -73,7 +181,37 @@ pub fn warp_rows(
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
-    warp_generic(px, view, rows, row, |y, r| sink.put_row(y, r))
+    warp_generic(px, view, rows, row, |y, r| sink.put_row(y, r), &inside_run)
+}
+
+/// [`warp_rows`] compiled for x86-64-v4 (AVX-512 F/BW/VL/DQ/CD on top of x86-64-v3),
+/// bit-identical: the pixels whose four taps lie inside the intermediate image, most of
+/// an image, are warped four at a time by [`inside_run_avx512`].
+///
+/// # Safety
+///
+/// The CPU must have every feature enabled here (as for
+/// [`crate::render::composite_band_until_x86_v4`]); the file frontend's `isa` module
+/// checks before it calls.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(
+    enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd"
+)]
+pub fn warp_rows_x86_v4(
+    px: &[Rgba],
+    view: &Factorization,
+    rows: core::ops::Range<usize>,
+    row: &mut [[u8; 4]],
+    sink: &mut impl PixelSink,
+) -> Result<(), Error> {
+    warp_generic(
+        px,
+        view,
+        rows,
+        row,
+        |y, r| sink.put_row(y, r),
+        &inside_run_avx512!(),
+    )
 }
 
 /// As [`warp_rows`], handing out rows at the intermediate image's full precision:
@@ -85,7 +223,7 @@ pub fn warp_rows_q15(
     row: &mut [[u16; 4]],
     mut put_row: impl FnMut(usize, &[[u16; 4]]) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    warp_generic(px, view, rows, row, |y, r| put_row(y, r))
+    warp_generic(px, view, rows, row, |y, r| put_row(y, r), &inside_run)
 }
 
 /// An output pixel of the warp. A trait rather than a pair of closures: the closures
@@ -121,13 +259,17 @@ impl Texel for [u16; 4] {
     }
 }
 
-/// The warp loop, generic over the output pixel.
+/// The warp loop, generic over the output pixel and over the loop for pixels whose taps
+/// are all inside (inlined into each caller, so that an instruction-set build compiles
+/// it with its features).
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn warp_generic<T: Texel>(
     px: &[Rgba],
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [T],
     mut put_row: impl FnMut(usize, &[T]) -> Result<(), Error>,
+    run: &impl Fn(&[Rgba], usize, (i64, i64), (i64, i64), &mut [T], T),
 ) -> Result<(), Error> {
     let zero = T::convert([0; 4]);
     let [w, h] = view.image;
@@ -175,7 +317,7 @@ fn warp_generic<T: Texel>(
                 row[x] = sample(px, iw, ih, u, v, zero);
             }
             let (u, v) = at(xi);
-            inside_run(px, iwu, (u, du), (v, dv), &mut row[xi..xj], zero);
+            run(px, iwu, (u, du), (v, dv), &mut row[xi..xj], zero);
         }
         put_row(y, row)?;
     }

@@ -11,6 +11,8 @@
 use shearwarp_core::composite::{Intermediate, Rgba, SliceTables};
 use shearwarp_core::render::{self, Frame};
 use shearwarp_core::source::SliceSource;
+use shearwarp_core::view::Factorization;
+use shearwarp_core::warp::{self, PixelSink};
 use shearwarp_core::Error;
 
 /// An instruction-set level of the compositing loop.
@@ -134,6 +136,24 @@ pub fn composite_band_until<S: SliceSource>(
             )
         },
         _ => render::composite_band_until(source, frame, tables, img, rows, shadow, keep_going),
+    }
+}
+
+/// [`warp::warp_rows`] in the build for `isa` (the x86-64-v4 one, or the portable
+/// one below it; the warp has no x86-64-v3 build).
+pub fn warp_rows(
+    isa: Isa,
+    px: &[Rgba],
+    view: &Factorization,
+    rows: std::ops::Range<usize>,
+    row: &mut [[u8; 4]],
+    sink: &mut impl PixelSink,
+) -> Result<(), Error> {
+    match isa.effective() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `effective` returns only levels whose features this CPU has.
+        Isa::X86V4 => unsafe { warp::warp_rows_x86_v4(px, view, rows, row, sink) },
+        _ => warp::warp_rows(px, view, rows, row, sink),
     }
 }
 
@@ -262,6 +282,69 @@ mod tests {
                     isa.name()
                 );
             }
+        }
+    }
+
+    /// The x86-64-v4 warp against the portable one: random intermediate images (channels
+    /// past one included, which the 8-bit conversion clamps) through random views and
+    /// output sizes, every output pixel compared.
+    #[test]
+    fn the_wider_warp_is_bit_identical_to_the_portable_one() {
+        use shearwarp_core::warp::FrameBuffer;
+        if !Isa::X86V4.available() {
+            eprintln!("no x86-64-v4 on this CPU: nothing to compare");
+            return;
+        }
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for case in 0..24 {
+            let dims = [
+                5 + (rnd() % 60) as usize,
+                5 + (rnd() % 60) as usize,
+                5 + (rnd() % 60) as usize,
+            ];
+            let grid = Grid::new(dims, [1.0, 1.0 + (case % 3) as f64 * 0.3, 1.0]).unwrap();
+            let size = 16 + (rnd() % 200) as usize;
+            let cam = Camera {
+                rotate_x: (rnd() % 360) as f64 - 180.0,
+                rotate_y: (rnd() % 360) as f64 - 180.0 + 0.37,
+                width: size,
+                height: size + case,
+            };
+            let view = view::Factorization::new(&grid, &cam).unwrap();
+            let [iw, ih] = view.intermediate;
+            let px: Vec<Rgba> = (0..iw * ih)
+                .map(|_| {
+                    let r = rnd();
+                    match r % 4 {
+                        0 => [0; 4],
+                        1 => core::array::from_fn(|c| (r >> (16 * c)) as u16),
+                        _ => core::array::from_fn(|c| ((r >> (15 * c)) % (1 << 15)) as u16),
+                    }
+                })
+                .collect();
+            let [w, h] = view.image;
+            let render = |isa: Isa| {
+                let mut frame = vec![[0u8; 4]; w * h];
+                let mut row = vec![[0u8; 4]; w];
+                let mut sink = FrameBuffer {
+                    width: w,
+                    pixels: &mut frame,
+                };
+                warp_rows(isa, &px, &view, 0..h, &mut row, &mut sink).unwrap();
+                frame
+            };
+            let base = render(Isa::Baseline);
+            assert!(
+                base.iter().any(|p| p[3] != 0),
+                "case {case}: nothing warped"
+            );
+            assert!(render(Isa::X86V4) == base, "case {case}: x86-64-v4 differs");
         }
     }
 }

@@ -812,7 +812,7 @@ impl Renderer {
                 width: w,
                 pixels: frame,
             };
-            return warp::warp(pixels, view, &mut row, &mut sink);
+            return isa::warp_rows(self.isa, pixels, view, 0..h, &mut row, &mut sink);
         };
         // Every row is computed on its own, so the result does not depend on the split.
         // Strips of WARP_ROWS rows are claimed as threads finish: the object rarely
@@ -836,7 +836,7 @@ impl Renderer {
                     pixels: chunk,
                 };
                 let rows = i * WARP_ROWS..(i + 1) * WARP_ROWS;
-                warp::warp_rows(pixels, view, rows, &mut row, &mut sink)?;
+                isa::warp_rows(self.isa, pixels, view, rows, &mut row, &mut sink)?;
             }
         };
         on_threads(pool, 0..self.rows.len(), work, PANICKED)
