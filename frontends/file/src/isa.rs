@@ -1,11 +1,12 @@
-//! Which instruction-set build of the core's compositing loop to run.
+//! Which instruction-set build of the core's compositing and warp loops to run.
 //!
 //! The core compiles its band compositor three times on x86-64: for the baseline
-//! (SSE2), for x86-64-v3 (AVX2) and for x86-64-v4 (AVX-512). All three run the same
-//! integer code, so their images are bit-identical; the wider builds are faster because
-//! the per-pixel "over" kernel multiplies 32-bit lanes, which SSE2 cannot do in one
-//! vector instruction, and because they prefetch the rows ahead instead of loading
-//! them. The core may not call the wider builds itself (it has no way to ask the CPU and
+//! (SSE2), for x86-64-v3 (AVX2) and for x86-64-v4 (AVX-512), and its warp twice
+//! (baseline and x86-64-v4). The wider builds shade voxels, composite pixels and warp
+//! pixels with vector kernels that multiply 32-bit lanes (which SSE2 cannot do in one
+//! instruction), and prefetch the rows ahead instead of loading them; every kernel does
+//! the portable one's integer arithmetic, so the images are bit-identical (the tests
+//! here and the goldens check). The core may not call the wider builds itself (it has no way to ask the CPU and
 //! forbids `unsafe`), so this module asks at run time and dispatches.
 
 use shearwarp_core::composite::{Intermediate, Rgba, SliceTables};
