@@ -6,8 +6,9 @@
 //! pixels with vector kernels that multiply 32-bit lanes (which SSE2 cannot do in one
 //! instruction), and prefetch the rows ahead instead of loading them; every kernel does
 //! the portable one's integer arithmetic, so the images are bit-identical (the tests
-//! here and the goldens check). The core may not call the wider builds itself (it has no way to ask the CPU and
-//! forbids `unsafe`), so this module asks at run time and dispatches.
+//! here and the goldens check). The core may not call the wider builds itself (it has
+//! no way to ask the CPU and forbids `unsafe`), so this module asks at run time and
+//! dispatches.
 
 use shearwarp_core::composite::{Intermediate, Rgba, SliceTables};
 use shearwarp_core::render::{self, Frame};
