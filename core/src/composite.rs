@@ -535,13 +535,14 @@ impl Iterator for MergedSpans<'_> {
     }
 }
 
-/// The two per-voxel steps an instruction-set build of the compositor may replace
-/// (see [`crate::render::composite_band_until_x86_v3`]); everything else is shared.
+/// The steps an instruction-set build of the compositor may replace (see
+/// [`crate::render::composite_band_until_x86_v3`]): warming the cache for a row, shading
+/// a voxel, compositing a run of pixels. Everything else is shared.
 pub(crate) trait Kernels {
     /// Warms the cache for a voxel row the compositor reads two rows later.
     fn warm(&self, voxels: &[Voxel]);
-    /// Shades colour `c` with `e` and premultiplies it by `alpha` (Q15, at most one) on
-    /// four lanes: [`premultiply`] or a bit-identical vector version.
+    /// Shades colour `c` with `e` and premultiplies it by `alpha` (Q15):
+    /// [`premultiply`] or a bit-identical vector version.
     fn premultiply(&self, c: &[u16; 4], e: &ShadeEntry, alpha: u32) -> Rgba;
     /// Resamples and composites a run of open pixels: [`over_run`] or a bit-identical
     /// vector version.
