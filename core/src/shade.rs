@@ -178,7 +178,7 @@ impl ShadeTable {
     /// The entry for `code` (codes past the table read its last entry).
     #[inline(always)]
     pub fn entry(&self, code: u16) -> ShadeEntry {
-        self.entries[(code as usize).min(normal::CODES - 1)]
+        *self.entry_ref(code)
     }
 
     /// Fills the table for `lighting` with object-to-camera rotation `rot` (row-major,

@@ -55,7 +55,7 @@ fn to_fixed(x: f64) -> i64 {
 /// [`inside_run`] for 8-bit output in AVX-512 vectors, four pixels a step: each pixel's
 /// four channels are four 32-bit lanes of one 128-bit quarter of a register. The
 /// weights are computed in the vector too: the fractional parts of the positions need
-/// only the low 16 bits, so the positions step in wrapping 32-bit lanes; the taps'
+/// only the low 16 bits, so they are taken from wrapping 32-bit lanes; the taps'
 /// addresses use the full positions. Bit-identical to [`inside_run`] with
 /// [`Texel::inner`] for `[u8; 4]`: every sum fits its lane (the weights sum to `ONE`,
 /// taps are at most `65535`), and the result is clamped to `ONE` before it is scaled to
@@ -76,11 +76,10 @@ macro_rules! inside_run_avx512 {
             let quads = out.len() / 4;
             // Lane l holds pixel l / 4 of the step.
             let pixel = _mm512_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3);
-            let start = |p: i64, dp: i64| {
-                _mm512_add_epi32(set1(p as i32), _mm512_mullo_epi32(pixel, set1(dp as i32)))
-            };
-            let (mut uu, mut vv) = (start(u, du), start(v, dv));
-            let (du4, dv4) = (set1((4 * du) as i32), set1((4 * dv) as i32));
+            let (pdu, pdv) = (
+                _mm512_mullo_epi32(pixel, set1(du as i32)),
+                _mm512_mullo_epi32(pixel, set1(dv as i32)),
+            );
             let (frac, whole) = (set1(0xffff), set1(0x1_0000));
             let (one, half, c255) = (set1(ONE as i32), set1(1 << 14), set1(255));
             // Four pixels' taps, each `pack`ed, into 16 lanes. Built in registers: taps
@@ -99,21 +98,23 @@ macro_rules! inside_run_avx512 {
                     Some([pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])])
                 }
                 let at = |p: i64| fetch(px, iw, u + (x + p) * du, v + (x + p) * dv);
-                let (ta, tb, tc, td) = (at(0), at(1), at(2), at(3));
-                let taps = match (ta, tb, tc, td) {
-                    (Some(a), Some(b), Some(c), Some(d)) => Some([a, b, c, d]),
-                    _ => None,
+                let taps = match (at(0), at(1), at(2), at(3)) {
+                    (Some(a), Some(b), Some(c), Some(d)) => [a, b, c, d],
+                    // Only if the caller's interval were wrong: the portable loop decides.
+                    _ => {
+                        inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), o, zero);
+                        continue;
+                    }
                 };
-                let ok = taps.is_some();
-                let taps = taps.unwrap_or_default();
-                let any = taps.iter().flatten().fold(0, |acc, &t| acc | t);
                 // Tap k of the four pixels.
                 let tap = |k: usize| [taps[0][k], taps[1][k], taps[2][k], taps[3][k]];
-                if ok && any == 0 {
+                if taps.iter().flatten().all(|&t| t == 0) {
                     // Empty background, as in `inside`.
                     o.fill(zero);
-                } else if ok {
+                } else {
                     // Weights, as `weights` computes them, in every lane of a pixel.
+                    let uu = _mm512_add_epi32(set1((u + x * du) as i32), pdu);
+                    let vv = _mm512_add_epi32(set1((v + x * dv) as i32), pdv);
                     let fu =
                         _mm512_srli_epi32::<1>(_mm512_sub_epi32(whole, _mm512_and_si512(uu, frac)));
                     let fv =
@@ -140,12 +141,7 @@ macro_rules! inside_run_avx512 {
                     ));
                     let px4: [[u8; 4]; 4] = bytemuck::cast(_mm512_cvtepi32_epi8(b));
                     o.copy_from_slice(&px4);
-                } else {
-                    // Only if the caller's interval were wrong: the portable loop decides.
-                    inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), o, zero);
                 }
-                uu = _mm512_add_epi32(uu, du4);
-                vv = _mm512_add_epi32(vv, dv4);
             }
             let x = 4 * quads as i64;
             inside_run(

@@ -171,6 +171,16 @@ mod tests {
     use shearwarp_core::source::RleVolume;
     use shearwarp_core::view::{self, Camera};
 
+    /// A xorshift64 stream for the random cases.
+    fn xorshift(mut seed: u64) -> impl FnMut() -> u64 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        }
+    }
+
     /// The wider builds replace the per-voxel shading step and the per-pixel "over" step
     /// with vector code; with every table entry drawn from the whole `u16` range
     /// (colours, shading factors and opacities a real lighting never produces, normal
@@ -178,13 +188,7 @@ mod tests {
     /// with and without depth cueing.
     #[test]
     fn wider_builds_shade_extreme_tables_like_the_baseline() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut rnd = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rnd = xorshift(0x2545_f491_4f6c_dd1d);
         let dims = [19, 23, 17];
         let grid = Grid::new(dims, [1.0, 1.2, 0.9]).unwrap();
         let dense: Vec<Voxel> = (0..grid.voxel_count())
@@ -192,7 +196,7 @@ mod tests {
                 let r = rnd();
                 Voxel {
                     // A third transparent, so runs of both kinds occur.
-                    opacity: if r % 3 == 0 { 0 } else { (r >> 8) as u8 },
+                    opacity: if r.is_multiple_of(3) { 0 } else { (r >> 8) as u8 },
                     scalar: (r >> 16) as u8,
                     normal: (r >> 24) as u16 % 8400,
                 }
@@ -297,13 +301,7 @@ mod tests {
             eprintln!("no x86-64-v4 on this CPU: nothing to compare");
             return;
         }
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut rnd = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rnd = xorshift(0x9e37_79b9_7f4a_7c15);
         for case in 0..24 {
             let dims = [
                 5 + (rnd() % 60) as usize,
