@@ -196,7 +196,11 @@ mod tests {
                 let r = rnd();
                 Voxel {
                     // A third transparent, so runs of both kinds occur.
-                    opacity: if r.is_multiple_of(3) { 0 } else { (r >> 8) as u8 },
+                    opacity: if r.is_multiple_of(3) {
+                        0
+                    } else {
+                        (r >> 8) as u8
+                    },
                     scalar: (r >> 16) as u8,
                     normal: (r >> 24) as u16 % 8400,
                 }
