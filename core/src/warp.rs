@@ -90,14 +90,7 @@ macro_rules! inside_run_avx512 {
             };
             for (k, o) in out.chunks_exact_mut(4).enumerate() {
                 let x = 4 * k as i64;
-                // The four taps of pixel x + p, as `inside` reads them.
-                #[inline(always)]
-                fn fetch(px: &[Rgba], iw: usize, u: i64, v: i64) -> Option<[u64; 4]> {
-                    let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
-                    let q = px.get(base..base.checked_add(iw + 2)?)?;
-                    Some([pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])])
-                }
-                let at = |p: i64| fetch(px, iw, u + (x + p) * du, v + (x + p) * dv);
+                let at = |p: i64| taps_at(px, iw, u + (x + p) * du, v + (x + p) * dv);
                 let taps = match (at(0), at(1), at(2), at(3)) {
                     (Some(a), Some(b), Some(c), Some(d)) => [a, b, c, d],
                     // Only if the caller's interval were wrong: the portable loop decides.
@@ -156,6 +149,91 @@ macro_rules! inside_run_avx512 {
     };
 }
 
+/// [`inside_run`] for 8-bit output in AVX2 vectors, two pixels a step: the layout and
+/// arithmetic of [`inside_run_avx512`] in 256-bit registers (each pixel's channels in
+/// one 128-bit half, where the in-lane shuffles and packs keep them), and bit-identical
+/// to [`inside_run`] for the same reasons. x86-64-v3 has no 32-to-8-bit narrowing, so
+/// the bytes are packed in two saturating steps (every value is already `0..=255`).
+#[cfg(target_arch = "x86_64")]
+macro_rules! inside_run_avx2 {
+    () => {
+        |px: &[Rgba],
+         iw: usize,
+         (u, du): (i64, i64),
+         (v, dv): (i64, i64),
+         out: &mut [[u8; 4]],
+         zero: [u8; 4]| {
+            use core::arch::x86_64::*;
+            let set1 = _mm256_set1_epi32;
+            let pairs = out.len() / 2;
+            // Lanes 0-3 hold the step's first pixel, lanes 4-7 its second.
+            let pixel = _mm256_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1);
+            let (pdu, pdv) = (
+                _mm256_mullo_epi32(pixel, set1(du as i32)),
+                _mm256_mullo_epi32(pixel, set1(dv as i32)),
+            );
+            let (frac, whole) = (set1(0xffff), set1(0x1_0000));
+            let (one, half, c255) = (set1(ONE as i32), set1(1 << 14), set1(255));
+            let wide = |a: u64, b: u64| _mm256_cvtepu16_epi32(_mm_set_epi64x(b as i64, a as i64));
+            for (k, o) in out.chunks_exact_mut(2).enumerate() {
+                let x = 2 * k as i64;
+                let at = |p: i64| taps_at(px, iw, u + (x + p) * du, v + (x + p) * dv);
+                let (a, b) = match (at(0), at(1)) {
+                    (Some(a), Some(b)) => (a, b),
+                    // Only if the caller's interval were wrong: the portable loop decides.
+                    _ => {
+                        inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), o, zero);
+                        continue;
+                    }
+                };
+                if (a[0] | a[1] | a[2] | a[3] | b[0] | b[1] | b[2] | b[3]) == 0 {
+                    // Empty background, as in `inside`.
+                    o.fill(zero);
+                    continue;
+                }
+                // Weights, as `weights` computes them, in every lane of a pixel.
+                let uu = _mm256_add_epi32(set1((u + x * du) as i32), pdu);
+                let vv = _mm256_add_epi32(set1((v + x * dv) as i32), pdv);
+                let fu =
+                    _mm256_srli_epi32::<1>(_mm256_sub_epi32(whole, _mm256_and_si256(uu, frac)));
+                let fv =
+                    _mm256_srli_epi32::<1>(_mm256_sub_epi32(whole, _mm256_and_si256(vv, frac)));
+                // Lanes 2 and 3 of a pixel take the bottom row's share.
+                let t = _mm256_blend_epi32::<0xcc>(fv, _mm256_sub_epi32(one, fv));
+                let p = _mm256_srli_epi32::<15>(_mm256_mullo_epi32(t, fu));
+                let w = _mm256_blend_epi32::<0xaa>(p, _mm256_sub_epi32(t, p));
+                let sum = _mm256_add_epi32(
+                    _mm256_add_epi32(
+                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0x00>(w), wide(a[0], b[0])),
+                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0x55>(w), wide(a[1], b[1])),
+                    ),
+                    _mm256_add_epi32(
+                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0xaa>(w), wide(a[2], b[2])),
+                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0xff>(w), wide(a[3], b[3])),
+                    ),
+                );
+                let q = _mm256_min_epu32(_mm256_srli_epi32::<15>(_mm256_add_epi32(sum, half)), one);
+                let q8 =
+                    _mm256_srli_epi32::<15>(_mm256_add_epi32(_mm256_mullo_epi32(q, c255), half));
+                // Each half's four bytes land in its lowest 32 bits.
+                let words = _mm256_packus_epi32(q8, q8);
+                let bytes = _mm256_packus_epi16(words, words);
+                o[0] = _mm256_extract_epi32::<0>(bytes).to_le_bytes();
+                o[1] = _mm256_extract_epi32::<4>(bytes).to_le_bytes();
+            }
+            let x = 2 * pairs as i64;
+            inside_run(
+                px,
+                iw,
+                (u + x * du, du),
+                (v + x * dv, dv),
+                &mut out[2 * pairs..],
+                zero,
+            );
+        }
+    };
+}
+
 /// Warps the intermediate image `px` (the full `view.intermediate` size, row-major) into
 /// the final image, one row at a time through `sink`. `row` must hold at least the image
 /// width.
@@ -178,6 +256,34 @@ pub fn warp_rows(
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
     warp_generic(px, view, rows, row, |y, r| sink.put_row(y, r), &inside_run)
+}
+
+/// [`warp_rows`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT, POPCNT), bit-identical:
+/// the pixels whose four taps lie inside the intermediate image are warped two at a time
+/// by [`inside_run_avx2`].
+///
+/// # Safety
+///
+/// The CPU must have every feature enabled here (as for
+/// [`crate::render::composite_band_until_x86_v3`]); the file frontend's `isa` module
+/// checks before it calls.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt")]
+pub fn warp_rows_x86_v3(
+    px: &[Rgba],
+    view: &Factorization,
+    rows: core::ops::Range<usize>,
+    row: &mut [[u8; 4]],
+    sink: &mut impl PixelSink,
+) -> Result<(), Error> {
+    warp_generic(
+        px,
+        view,
+        rows,
+        row,
+        |y, r| sink.put_row(y, r),
+        &inside_run_avx2!(),
+    )
 }
 
 /// [`warp_rows`] compiled for x86-64-v4 (AVX-512 F/BW/VL/DQ/CD on top of x86-64-v3),
@@ -432,18 +538,25 @@ fn weights(u: i64, v: i64) -> [u32; 4] {
 }
 
 /// [`Texel::inner`] of the four taps of the 16.16 position `(u, v)` in the intermediate
-/// image `px`, `iw` pixels wide, where they all lie inside it (`None` if they do not):
-/// one bounds check for all four.
+/// image `px`, `iw` pixels wide, where they all lie inside it (`None` if they do not).
 #[inline(always)]
 fn inside<T: Texel>(px: &[Rgba], iw: usize, u: i64, v: i64, zero: T) -> Option<T> {
-    let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
-    let q = px.get(base..base.checked_add(iw + 2)?)?;
-    let taps = [pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])];
+    let taps = taps_at(px, iw, u, v)?;
     // Empty background (most of a frame around a small volume) needs no weights.
     if taps[0] | taps[1] | taps[2] | taps[3] == 0 {
         return Some(zero);
     }
     Some(T::inner(taps, weights(u, v)))
+}
+
+/// The four taps of the 16.16 position `(u, v)` in the intermediate image `px`, `iw`
+/// pixels wide, each [`pack`]ed (top left, top right, bottom left, bottom right), or
+/// `None` if they do not all lie inside it: one bounds check for all four.
+#[inline(always)]
+fn taps_at(px: &[Rgba], iw: usize, u: i64, v: i64) -> Option<[u64; 4]> {
+    let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
+    let q = px.get(base..base.checked_add(iw + 2)?)?;
+    Some([pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])])
 }
 
 /// The pixels `out` of a row whose four taps all lie inside the intermediate image `px`

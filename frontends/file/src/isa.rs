@@ -1,8 +1,8 @@
 //! Which instruction-set build of the core's compositing and warp loops to run.
 //!
 //! The core compiles its band compositor three times on x86-64: for the baseline
-//! (SSE2), for x86-64-v3 (AVX2) and for x86-64-v4 (AVX-512), and its warp twice
-//! (baseline and x86-64-v4). The wider builds shade voxels, composite pixels and warp
+//! (SSE2), for x86-64-v3 (AVX2) and for x86-64-v4 (AVX-512), and its warp for the same
+//! three levels. The wider builds shade voxels, composite pixels and warp
 //! pixels with vector kernels that multiply 32-bit lanes (which SSE2 cannot do in one
 //! instruction), and prefetch the rows ahead instead of loading them; every kernel does
 //! the portable one's integer arithmetic, so the images are bit-identical (the tests
@@ -141,8 +141,7 @@ pub fn composite_band_until<S: SliceSource>(
     }
 }
 
-/// [`warp::warp_rows`] in the build for `isa` (the x86-64-v4 one, or the portable
-/// one below it; the warp has no x86-64-v3 build).
+/// [`warp::warp_rows`] in the build for `isa`, or the highest available level below it.
 pub fn warp_rows(
     isa: Isa,
     px: &[Rgba],
@@ -155,6 +154,9 @@ pub fn warp_rows(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `effective` returns only levels whose features this CPU has.
         Isa::X86V4 => unsafe { warp::warp_rows_x86_v4(px, view, rows, row, sink) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        Isa::X86V3 => unsafe { warp::warp_rows_x86_v3(px, view, rows, row, sink) },
         _ => warp::warp_rows(px, view, rows, row, sink),
     }
 }
@@ -295,14 +297,18 @@ mod tests {
         }
     }
 
-    /// The x86-64-v4 warp against the portable one: random intermediate images (channels
+    /// The x86-64-v3 and v4 warps against the portable one: random intermediate images (channels
     /// past one included, which the 8-bit conversion clamps) through random views and
     /// output sizes, every output pixel compared.
     #[test]
     fn the_wider_warp_is_bit_identical_to_the_portable_one() {
         use shearwarp_core::warp::FrameBuffer;
-        if !Isa::X86V4.available() {
-            eprintln!("no x86-64-v4 on this CPU: nothing to compare");
+        let wider: Vec<Isa> = [Isa::X86V3, Isa::X86V4]
+            .into_iter()
+            .filter(|i| i.available())
+            .collect();
+        if wider.is_empty() {
+            eprintln!("no x86-64-v3 on this CPU: nothing to compare");
             return;
         }
         let mut rnd = xorshift(0x9e37_79b9_7f4a_7c15);
@@ -348,7 +354,9 @@ mod tests {
                 base.iter().any(|p| p[3] != 0),
                 "case {case}: nothing warped"
             );
-            assert!(render(Isa::X86V4) == base, "case {case}: x86-64-v4 differs");
+            for &isa in &wider {
+                assert!(render(isa) == base, "case {case}: {} differs", isa.name());
+            }
         }
     }
 }
