@@ -3,6 +3,7 @@
 //! ray caster, a scaling series and a plot. See BENCHMARKS.md at the repository root.
 
 mod bench;
+mod ceiling;
 mod den;
 mod font;
 mod plot;
@@ -349,6 +350,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             s.psnr_view = (rx, ry);
         }
     }
+    let ceiling = threads.map(ceiling::measure);
     let mut main_results = Vec::new();
     for scene in &list {
         main_results.push(bench::run_scene(scene, &opts)?);
@@ -390,6 +392,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                 );
             }
         }
+    }
+    if let Some(c) = &ceiling {
+        println!("Threaded columns: read against {}.", c.describe());
     }
     println!("load average before {load_before}, after {load_after}");
 
@@ -436,6 +441,13 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             cli.frames, cli.rounds, cli.prep_runs
         );
         block.push_str(&report::markdown_table(&main_results));
+        if let Some(c) = &ceiling {
+            let _ = writeln!(
+                block,
+                "\nRead the threaded columns against {}.",
+                c.describe()
+            );
+        }
         if !scaling.is_empty() {
             let _ = writeln!(block, "\n### Scaling (nested spheres, n³)\n");
             block.push_str(&report::markdown_table(&scaling));
