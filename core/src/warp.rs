@@ -243,19 +243,28 @@ pub fn warp(
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
-    warp_rows(px, view, 0..view.image[1], row, sink)
+    warp_rows(px, None, view, 0..view.image[1], row, sink)
 }
 
 /// Warps output rows `rows` only (threads can split the final image between them; each
-/// row is computed independently, so the result does not depend on the split).
+/// row is computed independently, so the result does not depend on the split). `row`
+/// holds at least the image width; given `k` widths (`k` up to [`TILE_ROWS`]), `k`
+/// rows are warped together, in tiles that keep the intermediate pixels they read in
+/// cache (same result).
+///
+/// `extents`, when given, are the intermediate image's [`extents`]: runs of output
+/// pixels whose taps all fall outside them are filled with the background without being
+/// sampled (bit-identical: they would sample only zero pixels).
 pub fn warp_rows(
     px: &[Rgba],
+    extents: Option<&[[u32; 2]]>,
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
-    warp_generic(px, view, rows, row, |y, r| sink.put_row(y, r), &inside_run)
+    let put = |y, r: &[[u8; 4]]| sink.put_row(y, r);
+    warp_generic(px, extents, view, rows, row, put, &inside_run)
 }
 
 /// [`warp_rows`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT, POPCNT), bit-identical:
@@ -271,19 +280,14 @@ pub fn warp_rows(
 #[target_feature(enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt")]
 pub fn warp_rows_x86_v3(
     px: &[Rgba],
+    extents: Option<&[[u32; 2]]>,
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
-    warp_generic(
-        px,
-        view,
-        rows,
-        row,
-        |y, r| sink.put_row(y, r),
-        &inside_run_avx2!(),
-    )
+    let put = |y, r: &[[u8; 4]]| sink.put_row(y, r);
+    warp_generic(px, extents, view, rows, row, put, &inside_run_avx2!())
 }
 
 /// [`warp_rows`] compiled for x86-64-v4 (AVX-512 F/BW/VL/DQ/CD on top of x86-64-v3),
@@ -301,31 +305,71 @@ pub fn warp_rows_x86_v3(
 )]
 pub fn warp_rows_x86_v4(
     px: &[Rgba],
+    extents: Option<&[[u32; 2]]>,
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [[u8; 4]],
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
-    warp_generic(
-        px,
-        view,
-        rows,
-        row,
-        |y, r| sink.put_row(y, r),
-        &inside_run_avx512!(),
-    )
+    let put = |y, r: &[[u8; 4]]| sink.put_row(y, r);
+    warp_generic(px, extents, view, rows, row, put, &inside_run_avx512!())
 }
 
 /// As [`warp_rows`], handing out rows at the intermediate image's full precision:
 /// premultiplied RGBA in Q15 (`0..=32768` is 0..1), for 16-bit output.
 pub fn warp_rows_q15(
     px: &[Rgba],
+    extents: Option<&[[u32; 2]]>,
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [[u16; 4]],
     mut put_row: impl FnMut(usize, &[[u16; 4]]) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    warp_generic(px, view, rows, row, |y, r| put_row(y, r), &inside_run)
+    let put = |y, r: &[[u16; 4]]| put_row(y, r);
+    warp_generic(px, extents, view, rows, row, put, &inside_run)
+}
+
+/// For each scanline of the intermediate image `px` (`iw` pixels wide), the columns
+/// `[first, last + 1)` from its first to its last pixel that is not zero (`[0, 0]` for
+/// an empty scanline), into `out` (one entry per scanline). The scan stops at the first
+/// such pixel from either end, so it reads little more than the background.
+pub fn extents(px: &[Rgba], iw: usize, out: &mut [[u32; 2]]) -> Result<(), Error> {
+    if iw == 0 {
+        return Ok(());
+    }
+    need("warp extents", px.len() / iw, out.len())?;
+    for (line, e) in px.chunks_exact(iw).zip(out.iter_mut()) {
+        let set = |p: &Rgba| pack(p) != 0;
+        *e = match (line.iter().position(set), line.iter().rposition(set)) {
+            (Some(a), Some(b)) => [a as u32, b as u32 + 1],
+            _ => [0, 0],
+        };
+    }
+    Ok(())
+}
+
+/// Output pixels per test against the extents: long enough that a test costs little per
+/// pixel, short enough to follow an object's outline.
+const SKIP_RUN: usize = 16;
+
+/// True if no pixel of the output run from 16.16 position `a` to `b` (its first and
+/// last pixel, all taps inside the image) can read a pixel that is not zero: every
+/// scanline its taps touch is empty over the columns they touch. The positions between
+/// `a` and `b` lie on the segment between them, so their taps lie in the box of the
+/// taps of the two ends.
+#[inline(always)]
+fn background(extents: &[[u32; 2]], a: (i64, i64), b: (i64, i64)) -> bool {
+    let (u0, u1) = (
+        (a.0.min(b.0) >> FRAC) as u32,
+        (a.0.max(b.0) >> FRAC) as u32 + 1,
+    );
+    let (v0, v1) = (
+        (a.1.min(b.1) >> FRAC) as usize,
+        (a.1.max(b.1) >> FRAC) as usize + 1,
+    );
+    extents
+        .get(v0..=v1)
+        .is_some_and(|lines| lines.iter().all(|&[f, l]| f >= l || u1 < f || u0 >= l))
 }
 
 /// An output pixel of the warp. A trait rather than a pair of closures: the closures
@@ -367,6 +411,7 @@ impl Texel for [u16; 4] {
 #[cfg_attr(target_arch = "x86_64", inline(always))]
 fn warp_generic<T: Texel>(
     px: &[Rgba],
+    extents: Option<&[[u32; 2]]>,
     view: &Factorization,
     rows: core::ops::Range<usize>,
     row: &mut [T],
@@ -378,18 +423,18 @@ fn warp_generic<T: Texel>(
     need("warp row", w, row.len())?;
     let [iwu, ihu] = view.intermediate;
     need("intermediate pixels", iwu * ihu, px.len())?;
-    let row = &mut row[..w];
     let m = view.image_to_intermediate;
     let (iw, ih) = (iwu as i64, ihu as i64);
-    let projective = m[2] != [0.0, 0.0, 1.0];
     let du = to_fixed(m[0][0]);
     let dv = to_fixed(m[1][0]);
-    // Projective: numerators and denominator in Q24, stepped exactly along the row.
-    let q = |x: f64| libm::round(x.clamp(-1.0e9, 1.0e9) * (1u64 << PFRAC) as f64) as i64;
-    let step = [q(m[0][0]), q(m[1][0]), q(m[2][0])];
-    for y in rows.start..rows.end.min(h) {
-        let yc = y as f64 + 0.5;
-        if projective {
+    let rows = rows.start..rows.end.min(h);
+    if m[2] != [0.0, 0.0, 1.0] {
+        // Projective: numerators and denominator in Q24, stepped exactly along the row.
+        let q = |x: f64| libm::round(x.clamp(-1.0e9, 1.0e9) * (1u64 << PFRAC) as f64) as i64;
+        let step = [q(m[0][0]), q(m[1][0]), q(m[2][0])];
+        let row = &mut row[..w];
+        for y in rows {
+            let yc = y as f64 + 0.5;
             let at = |r: usize| q(m[r][0] * 0.5 + m[r][1] * yc + m[r][2]);
             let mut num = [at(0), at(1), at(2)];
             for out in row.iter_mut() {
@@ -401,30 +446,89 @@ fn warp_generic<T: Texel>(
                     *n = n.saturating_add(s);
                 }
             }
-        } else {
+            put_row(y, row)?;
+        }
+        return Ok(());
+    }
+    if w == 0 {
+        for y in rows {
+            put_row(y, &[])?;
+        }
+        return Ok(());
+    }
+    // As many rows at a time as `row` holds, up to TILE_ROWS.
+    let strip = (row.len() / w).clamp(1, TILE_ROWS);
+    let one = 1i64 << FRAC;
+    let mut y0 = rows.start;
+    while y0 < rows.end {
+        let n = strip.min(rows.end - y0);
+        // Per row: its start position and the pixels xi..xj whose four taps lie inside.
+        let mut inner = [(0i64, 0i64, 0usize, 0usize); TILE_ROWS];
+        for (r, (out, plan)) in row.chunks_exact_mut(w).zip(&mut inner).take(n).enumerate() {
+            let out = &mut out[..w];
+            let yc = (y0 + r) as f64 + 0.5;
             let u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
             let v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
             // Only pixels xa..xb of the row reach the intermediate image at all, and of
             // those, xi..xj have all four taps inside it (most of them): the edge pixels
-            // take the checked path, the others a loop without per-tap tests.
-            let one = 1i64 << FRAC;
+            // take the checked path here, the others a loop without per-tap tests below.
             let (xa, xb) = reach(u, du, v, dv, [-one, iw * one], [-one, ih * one], w);
             let (xi, xj) = reach(u, du, v, dv, [0, (iw - 1) * one], [0, (ih - 1) * one], w);
             let (xi, xj) = if xi < xj { (xi, xj) } else { (xb, xb) };
-            row[..xa].fill(zero);
-            row[xb..].fill(zero);
-            let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
+            out[..xa].fill(zero);
+            out[xb..].fill(zero);
             for x in (xa..xi).chain(xj..xb) {
-                let (u, v) = at(x);
-                row[x] = sample(px, iw, ih, u, v, zero);
+                let (pu, pv) = (u + x as i64 * du, v + x as i64 * dv);
+                out[x] = sample(px, iw, ih, pu, pv, zero);
             }
-            let (u, v) = at(xi);
-            run(px, iwu, (u, du), (v, dv), &mut row[xi..xj], zero);
+            *plan = (u, v, xi, xj);
         }
-        put_row(y, row)?;
+        // The inside pixels in tiles of TILE_COLS columns by the strip's rows: when the
+        // intermediate image is walked across its scanlines (a view whose principal
+        // axis turns the image), each output row reads a new cache line per pixel, and
+        // a tile's rows reuse them while they are still cached.
+        for c0 in (0..w).step_by(TILE_COLS) {
+            let c1 = (c0 + TILE_COLS).min(w);
+            for (out, &(u, v, xi, xj)) in row.chunks_exact_mut(w).zip(&inner).take(n) {
+                let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
+                let inside = |from: usize, to: usize, out: &mut [T]| {
+                    let (u, v) = at(from);
+                    run(px, iwu, (u, du), (v, dv), &mut out[from..to], zero);
+                };
+                let (a, b) = (xi.max(c0), xj.min(c1));
+                match extents {
+                    _ if a >= b => {}
+                    None => inside(a, b, out),
+                    Some(ext) => {
+                        // Runs of SKIP_RUN pixels over background are filled; the pixels
+                        // between them go to the inside loop in one call.
+                        let mut start = a;
+                        for x in (a..b).step_by(SKIP_RUN) {
+                            let end = (x + SKIP_RUN).min(b);
+                            if background(ext, at(x), at(end - 1)) {
+                                inside(start, x, out);
+                                out[x..end].fill(zero);
+                                start = end;
+                            }
+                        }
+                        inside(start, b, out);
+                    }
+                }
+            }
+        }
+        for (r, out) in row.chunks_exact(w).take(n).enumerate() {
+            put_row(y0 + r, &out[..w])?;
+        }
+        y0 += n;
     }
     Ok(())
 }
+
+/// Most output rows [`warp_generic`] warps together (when its row buffer holds them).
+pub const TILE_ROWS: usize = 16;
+
+/// Output columns per tile of [`warp_generic`]'s inside pixels.
+const TILE_COLS: usize = 64;
 
 /// True if the 16.16 position `(u, v)` has a tap inside an `iw×ih` intermediate image
 /// (the test [`sample`] makes before it reads anything).
@@ -681,6 +785,108 @@ mod tests {
                 assert_eq!(all, x >= xi && x < xj, "round {round}: x {x} in {xi}..{xj}");
             }
         }
+    }
+
+    /// Intermediate images holding a blob (an ellipse of random pixels, now and then a
+    /// stray pixel outside it) in background, warped through random views one row at a
+    /// time, in tiles of rows, and skipping background by the extents: every output
+    /// pixel is the same, and the extents bound exactly the pixels that are not zero.
+    #[test]
+    fn skipping_background_by_extents_changes_no_pixel() {
+        use crate::classify::Grid;
+        use crate::view::Camera;
+        let mut rand = crate::xorshift(0x6a09_e667_f3bc_c909);
+        let mut skipped = 0;
+        for case in 0..60 {
+            let mut next = |m: u64| (rand() >> 16) % m;
+            let dims = [
+                6 + next(11) as usize,
+                6 + next(11) as usize,
+                6 + next(11) as usize,
+            ];
+            let Ok(grid) = Grid::new(dims, [1.0, 1.0 + next(3) as f64 * 0.25, 1.0]) else {
+                panic!("case {case}: grid {dims:?}");
+            };
+            let (w, h) = (8 + next(150) as usize, 8 + next(57) as usize);
+            let cam = Camera {
+                rotate_x: next(360) as f64 - 180.0 + 0.3,
+                rotate_y: next(360) as f64 - 180.0 + 0.7,
+                width: w,
+                height: h,
+            };
+            let Ok(view) = Factorization::new(&grid, &cam) else {
+                panic!("case {case}: view");
+            };
+            let [iw, ih] = view.intermediate;
+            let mut px = [[0u16; 4]; 64 * 64];
+            assert!(iw * ih <= px.len() && ih <= 64, "case {case}: {iw}x{ih}");
+            let px = &mut px[..iw * ih];
+            let (cx, cy) = (next(iw as u64) as i64, next(ih as u64) as i64);
+            let (rx, ry) = (
+                1 + next(iw as u64 / 2 + 1) as i64,
+                1 + next(ih as u64 / 2 + 1) as i64,
+            );
+            for (i, p) in px.iter_mut().enumerate() {
+                let (dx, dy) = (i as i64 % iw as i64 - cx, i as i64 / iw as i64 - cy);
+                let stray = next(200) == 0;
+                if dx * dx * ry * ry + dy * dy * rx * rx <= rx * rx * ry * ry || stray {
+                    let r = next(u64::MAX);
+                    *p = core::array::from_fn(|c| ((r >> (15 * c)) % (1 << 15)) as u16);
+                }
+            }
+            let mut ext = [[9u32; 2]; 64];
+            let ext = &mut ext[..ih];
+            assert!(extents(px, iw, ext).is_ok());
+            for (line, &[f, l]) in px.chunks_exact(iw).zip(ext.iter()) {
+                let set: [bool; 64] = core::array::from_fn(|x| x < iw && pack(&line[x]) != 0);
+                let first = set.iter().position(|&b| b);
+                let last = set.iter().rposition(|&b| b);
+                match (first, last) {
+                    (Some(a), Some(b)) => assert_eq!([f, l], [a as u32, b as u32 + 1]),
+                    _ => assert_eq!([f, l], [0, 0]),
+                }
+            }
+            // One row at a time; with extents and whole tiles of rows; tiles of 3 rows.
+            let mut frames = [[[0u8; 4]; 160 * 64]; 3];
+            let mut row = [[0u8; 4]; 160 * TILE_ROWS];
+            for (k, frame) in frames.iter_mut().enumerate() {
+                let mut sink = FrameBuffer {
+                    width: w,
+                    pixels: &mut frame[..w * h],
+                };
+                let ext = (k == 1).then_some(&ext[..]);
+                let row = &mut row[..w * [1, TILE_ROWS, 3][k]];
+                assert!(warp_rows(px, ext, &view, 0..h, row, &mut sink).is_ok());
+            }
+            assert!(
+                frames[0] == frames[1],
+                "case {case}: the skipping warp differs"
+            );
+            assert!(
+                frames[0] == frames[2],
+                "case {case}: the tiled warp differs"
+            );
+            // Count the runs the test exercises, as `warp_generic` finds them.
+            let m = view.image_to_intermediate;
+            for y in 0..h {
+                let yc = y as f64 + 0.5;
+                let u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
+                let v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
+                let (du, dv) = (to_fixed(m[0][0]), to_fixed(m[1][0]));
+                let one = 1i64 << FRAC;
+                let (bu, bv) = ([0, (iw as i64 - 1) * one], [0, (ih as i64 - 1) * one]);
+                let (xi, xj) = reach(u, du, v, dv, bu, bv, w);
+                for x in (xi..xj).step_by(SKIP_RUN) {
+                    let e = (x + SKIP_RUN).min(xj) - 1;
+                    let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
+                    skipped += background(ext, at(x), at(e)) as usize;
+                }
+            }
+        }
+        assert!(
+            skipped > 100,
+            "only {skipped} runs skipped: the test misses the path"
+        );
     }
 
     #[test]

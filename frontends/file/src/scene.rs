@@ -616,6 +616,9 @@ impl Renderer {
         self.fov = fov;
     }
 
+    pub fn intermediate_pixels(&self, n: usize) -> &[Rgba] {
+        &self.pixels[..n]
+    }
     /// Number of compositing threads.
     pub fn threads(&self) -> usize {
         self.threads
@@ -806,22 +809,24 @@ impl Renderer {
         })?;
         let [w, h] = view.image;
         frame.resize(w * h, [0; 4]);
+        let ext = extents(pixels, iw, ih)?;
+        let ext = Some(&ext[..]);
         let Some(pool) = self.pool.as_ref().filter(|_| self.rows.len() > 1) else {
-            let mut row = vec![[0u8; 4]; w];
+            let mut row = vec![[0u8; 4]; warp::TILE_ROWS * w];
             let mut sink = FrameBuffer {
                 width: w,
                 pixels: frame,
             };
-            return isa::warp_rows(self.isa, pixels, view, 0..h, &mut row, &mut sink);
+            return isa::warp_rows(self.isa, pixels, ext, view, 0..h, &mut row, &mut sink);
         };
         // Every row is computed on its own, so the result does not depend on the split.
         // Strips of WARP_ROWS rows are claimed as threads finish: the object rarely
         // covers the top and bottom halves of the image alike.
-        const WARP_ROWS: usize = 16;
+        const WARP_ROWS: usize = warp::TILE_ROWS;
         const PANICKED: &str = "a warp thread panicked";
         let strips = Mutex::new(frame.chunks_mut(WARP_ROWS * w).enumerate());
         let work = |_| -> Result<(), Error> {
-            let mut row = vec![[0u8; 4]; w];
+            let mut row = vec![[0u8; 4]; WARP_ROWS * w];
             loop {
                 let next = strips
                     .lock()
@@ -836,7 +841,7 @@ impl Renderer {
                     pixels: chunk,
                 };
                 let rows = i * WARP_ROWS..(i + 1) * WARP_ROWS;
-                isa::warp_rows(self.isa, pixels, view, rows, &mut row, &mut sink)?;
+                isa::warp_rows(self.isa, pixels, ext, view, rows, &mut row, &mut sink)?;
             }
         };
         on_threads(pool, 0..self.rows.len(), work, PANICKED)
@@ -870,8 +875,9 @@ impl Renderer {
         let [w, h] = view.image;
         let q15 = shearwarp_core::fixed::ONE as u64;
         let mut out = vec![[0u16; 4]; w * h];
-        let mut row = vec![[0u16; 4]; w];
-        warp::warp_rows_q15(px, view, 0..h, &mut row, |y, r| {
+        let mut row = vec![[0u16; 4]; warp::TILE_ROWS * w];
+        let ext = extents(px, iw, ih)?;
+        warp::warp_rows_q15(px, Some(&ext), view, 0..h, &mut row, |y, r| {
             for (o, p) in out[y * w..(y + 1) * w].iter_mut().zip(r) {
                 *o = p.map(|q| ((q as u64 * 65535 + q15 / 2) / q15) as u16);
             }
@@ -879,6 +885,14 @@ impl Renderer {
         })?;
         Ok(out)
     }
+}
+
+/// The columns of each intermediate scanline that hold anything ([`warp::extents`]), for
+/// the warp to skip the background by.
+fn extents(px: &[Rgba], iw: usize, ih: usize) -> Result<Vec<[u32; 2]>, Error> {
+    let mut ext = vec![[0u32; 2]; ih];
+    warp::extents(px, iw, &mut ext)?;
+    Ok(ext)
 }
 
 /// Writes RGBA16 pixels (premultiplied over black) as a 16-bit RGB PNG.
