@@ -52,186 +52,141 @@ fn to_fixed(x: f64) -> i64 {
     libm::round(c * (1u64 << FRAC) as f64) as i64
 }
 
-/// [`inside_run`] for 8-bit output in AVX-512 vectors, four pixels a step: each pixel's
-/// four channels are four 32-bit lanes of one 128-bit quarter of a register. The
-/// weights are computed in the vector too: the fractional parts of the positions need
-/// only the low 16 bits, so they are taken from wrapping 32-bit lanes; the taps'
-/// addresses use the full positions. Bit-identical to [`inside_run`] with
-/// [`Texel::inner`] for `[u8; 4]`: every sum fits its lane (the weights sum to `ONE`,
-/// taps are at most `65535`), and the result is clamped to `ONE` before it is scaled to
-/// 8 bits, as [`fixed::to_u8`] does. A macro expanding to a closure, written inside the
-/// `target_feature` function that uses it (see
-/// [`crate::render::composite_band_until_x86_v3`] for why).
+/// [`inside_run`] for 8-bit output by `N` pixels at a time with `step`, which warps `N`
+/// pixels from the 16.16 position of the first and their taps (each pixel's four,
+/// [`pack`]ed, as [`taps_at`] reads them). A step whose taps are all zero is
+/// background, as in [`inside`]; the pixels left over, and a step with a tap outside
+/// the image (only if the caller's interval were wrong), go to [`inside_run`].
 #[cfg(target_arch = "x86_64")]
-macro_rules! inside_run_avx512 {
-    () => {
-        |px: &[Rgba],
-         iw: usize,
-         (u, du): (i64, i64),
-         (v, dv): (i64, i64),
-         out: &mut [[u8; 4]],
-         zero: [u8; 4]| {
-            use core::arch::x86_64::*;
-            let set1 = _mm512_set1_epi32;
-            let quads = out.len() / 4;
-            // Lane l holds pixel l / 4 of the step.
-            let pixel = _mm512_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3);
-            let (pdu, pdv) = (
-                _mm512_mullo_epi32(pixel, set1(du as i32)),
-                _mm512_mullo_epi32(pixel, set1(dv as i32)),
-            );
-            let (frac, whole) = (set1(0xffff), set1(0x1_0000));
-            let (one, half, c255) = (set1(ONE as i32), set1(1 << 14), set1(255));
-            // Four pixels' taps, each `pack`ed, into 16 lanes. Built in registers: taps
-            // stored to an array and loaded back as one vector would wait for the stores.
-            let wide = |t: [u64; 4]| {
-                let t = t.map(|x| x as i64);
-                _mm512_cvtepu16_epi32(_mm256_set_epi64x(t[3], t[2], t[1], t[0]))
-            };
-            for (k, o) in out.chunks_exact_mut(4).enumerate() {
-                let x = 4 * k as i64;
-                let at = |p: i64| taps_at(px, iw, u + (x + p) * du, v + (x + p) * dv);
-                let taps = match (at(0), at(1), at(2), at(3)) {
-                    (Some(a), Some(b), Some(c), Some(d)) => [a, b, c, d],
-                    // Only if the caller's interval were wrong: the portable loop decides.
-                    _ => {
-                        inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), o, zero);
-                        continue;
-                    }
-                };
-                // Tap k of the four pixels.
-                let tap = |k: usize| [taps[0][k], taps[1][k], taps[2][k], taps[3][k]];
-                if taps.iter().flatten().all(|&t| t == 0) {
-                    // Empty background, as in `inside`.
-                    o.fill(zero);
-                } else {
-                    // Weights, as `weights` computes them, in every lane of a pixel.
-                    let uu = _mm512_add_epi32(set1((u + x * du) as i32), pdu);
-                    let vv = _mm512_add_epi32(set1((v + x * dv) as i32), pdv);
-                    let fu =
-                        _mm512_srli_epi32::<1>(_mm512_sub_epi32(whole, _mm512_and_si512(uu, frac)));
-                    let fv =
-                        _mm512_srli_epi32::<1>(_mm512_sub_epi32(whole, _mm512_and_si512(vv, frac)));
-                    // Lanes 2 and 3 of a pixel take the bottom row's share.
-                    let t = _mm512_mask_blend_epi32(0xcccc, fv, _mm512_sub_epi32(one, fv));
-                    let p = _mm512_srli_epi32::<15>(_mm512_mullo_epi32(t, fu));
-                    let w = _mm512_mask_blend_epi32(0xaaaa, p, _mm512_sub_epi32(t, p));
-                    let sum = _mm512_add_epi32(
-                        _mm512_add_epi32(
-                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0x00>(w), wide(tap(0))),
-                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0x55>(w), wide(tap(1))),
-                        ),
-                        _mm512_add_epi32(
-                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0xaa>(w), wide(tap(2))),
-                            _mm512_mullo_epi32(_mm512_shuffle_epi32::<0xff>(w), wide(tap(3))),
-                        ),
-                    );
-                    let q =
-                        _mm512_min_epu32(_mm512_srli_epi32::<15>(_mm512_add_epi32(sum, half)), one);
-                    let b = _mm512_srli_epi32::<15>(_mm512_add_epi32(
-                        _mm512_mullo_epi32(q, c255),
-                        half,
-                    ));
-                    let px4: [[u8; 4]; 4] = bytemuck::cast(_mm512_cvtepi32_epi8(b));
-                    o.copy_from_slice(&px4);
-                }
+#[inline(always)]
+fn inside_by_steps<const N: usize>(
+    px: &[Rgba],
+    iw: usize,
+    (u, du): (i64, i64),
+    (v, dv): (i64, i64),
+    out: &mut [[u8; 4]],
+    zero: [u8; 4],
+    step: impl Fn((i64, i64), [[u64; 4]; N]) -> [[u8; 4]; N],
+) {
+    let steps = out.len() / N;
+    for (k, o) in out.chunks_exact_mut(N).enumerate() {
+        let (ux, vx) = (u + (N * k) as i64 * du, v + (N * k) as i64 * dv);
+        let taps: [Option<[u64; 4]>; N] =
+            core::array::from_fn(|p| taps_at(px, iw, ux + p as i64 * du, vx + p as i64 * dv));
+        if taps.iter().any(Option::is_none) {
+            inside_run(px, iw, (ux, du), (vx, dv), o, zero);
+        } else {
+            let taps = taps.map(Option::unwrap_or_default);
+            if taps.iter().flatten().all(|&t| t == 0) {
+                o.fill(zero);
+            } else {
+                o.copy_from_slice(&step((ux, vx), taps));
             }
-            let x = 4 * quads as i64;
-            inside_run(
-                px,
-                iw,
-                (u + x * du, du),
-                (v + x * dv, dv),
-                &mut out[4 * quads..],
-                zero,
-            );
         }
-    };
+    }
+    let x = (N * steps) as i64;
+    let rest = &mut out[N * steps..];
+    inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), rest, zero);
 }
 
-/// [`inside_run`] for 8-bit output in AVX2 vectors, two pixels a step: the layout and
-/// arithmetic of [`inside_run_avx512`] in 256-bit registers (each pixel's channels in
-/// one 128-bit half, where the in-lane shuffles and packs keep them), and bit-identical
-/// to [`inside_run`] for the same reasons. x86-64-v3 has no 32-to-8-bit narrowing, so
-/// the bytes are packed in two saturating steps (every value is already `0..=255`).
+/// [`inside_run`] for 8-bit output in AVX2 or AVX-512 vectors, 2 or 4 pixels a step
+/// ([`inside_by_steps`]): each pixel's four channels are four 32-bit lanes of one
+/// 128-bit part of a register. The weights are computed in the vector too: the
+/// fractional parts of the positions need only the low 16 bits, so they are taken from
+/// wrapping 32-bit lanes; the taps' addresses use the full positions. x86-64-v3 has no
+/// 32-to-8-bit narrowing, so its bytes are packed in two saturating steps (every value
+/// is already `0..=255`).
+///
+/// Bit-identical to [`inside_run`] with [`Texel::inner`] for `[u8; 4]`: every sum fits
+/// its lane (the weights sum to `ONE`, taps are at most `65535`), and the result is
+/// clamped to `ONE` before it is scaled to 8 bits, as [`fixed::to_u8`] does. A macro
+/// expanding to a closure, written inside the `target_feature` function that uses it
+/// (see [`crate::render::composite_band_until_x86_v3`] for why).
 #[cfg(target_arch = "x86_64")]
-macro_rules! inside_run_avx2 {
-    () => {
-        |px: &[Rgba],
-         iw: usize,
-         (u, du): (i64, i64),
-         (v, dv): (i64, i64),
-         out: &mut [[u8; 4]],
-         zero: [u8; 4]| {
+macro_rules! inside_run_simd {
+    (avx2) => {
+        |px: &[Rgba], iw: usize, u: (i64, i64), v: (i64, i64), out: &mut [[u8; 4]], zero| {
             use core::arch::x86_64::*;
-            let set1 = _mm256_set1_epi32;
-            let pairs = out.len() / 2;
-            // Lanes 0-3 hold the step's first pixel, lanes 4-7 its second.
-            let pixel = _mm256_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1);
-            let (pdu, pdv) = (
-                _mm256_mullo_epi32(pixel, set1(du as i32)),
-                _mm256_mullo_epi32(pixel, set1(dv as i32)),
-            );
-            let (frac, whole) = (set1(0xffff), set1(0x1_0000));
-            let (one, half, c255) = (set1(ONE as i32), set1(1 << 14), set1(255));
-            let wide = |a: u64, b: u64| _mm256_cvtepu16_epi32(_mm_set_epi64x(b as i64, a as i64));
-            for (k, o) in out.chunks_exact_mut(2).enumerate() {
-                let x = 2 * k as i64;
-                let at = |p: i64| taps_at(px, iw, u + (x + p) * du, v + (x + p) * dv);
-                let (a, b) = match (at(0), at(1)) {
-                    (Some(a), Some(b)) => (a, b),
-                    // Only if the caller's interval were wrong: the portable loop decides.
-                    _ => {
-                        inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), o, zero);
-                        continue;
-                    }
-                };
-                if (a[0] | a[1] | a[2] | a[3] | b[0] | b[1] | b[2] | b[3]) == 0 {
-                    // Empty background, as in `inside`.
-                    o.fill(zero);
-                    continue;
+            let step = inside_run_simd!(
+                step 2, u.1, v.1,
+                _mm256_set1_epi32, _mm256_add_epi32, _mm256_sub_epi32, _mm256_mullo_epi32,
+                _mm256_srli_epi32, _mm256_min_epu32, _mm256_and_si256, _mm256_shuffle_epi32,
+                _mm256_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1),
+                |t: [u64; 2]| _mm256_cvtepu16_epi32(_mm_set_epi64x(t[1] as i64, t[0] as i64)),
+                |a, b| _mm256_blend_epi32::<0xcc>(a, b),
+                |a, b| _mm256_blend_epi32::<0xaa>(a, b),
+                |q| {
+                    // Each half's four bytes land in its lowest 32 bits.
+                    let words = _mm256_packus_epi32(q, q);
+                    let bytes = _mm256_packus_epi16(words, words);
+                    [
+                        _mm256_extract_epi32::<0>(bytes).to_le_bytes(),
+                        _mm256_extract_epi32::<4>(bytes).to_le_bytes(),
+                    ]
                 }
-                // Weights, as `weights` computes them, in every lane of a pixel.
-                let uu = _mm256_add_epi32(set1((u + x * du) as i32), pdu);
-                let vv = _mm256_add_epi32(set1((v + x * dv) as i32), pdv);
-                let fu =
-                    _mm256_srli_epi32::<1>(_mm256_sub_epi32(whole, _mm256_and_si256(uu, frac)));
-                let fv =
-                    _mm256_srli_epi32::<1>(_mm256_sub_epi32(whole, _mm256_and_si256(vv, frac)));
-                // Lanes 2 and 3 of a pixel take the bottom row's share.
-                let t = _mm256_blend_epi32::<0xcc>(fv, _mm256_sub_epi32(one, fv));
-                let p = _mm256_srli_epi32::<15>(_mm256_mullo_epi32(t, fu));
-                let w = _mm256_blend_epi32::<0xaa>(p, _mm256_sub_epi32(t, p));
-                let sum = _mm256_add_epi32(
-                    _mm256_add_epi32(
-                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0x00>(w), wide(a[0], b[0])),
-                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0x55>(w), wide(a[1], b[1])),
-                    ),
-                    _mm256_add_epi32(
-                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0xaa>(w), wide(a[2], b[2])),
-                        _mm256_mullo_epi32(_mm256_shuffle_epi32::<0xff>(w), wide(a[3], b[3])),
-                    ),
-                );
-                let q = _mm256_min_epu32(_mm256_srli_epi32::<15>(_mm256_add_epi32(sum, half)), one);
-                let q8 =
-                    _mm256_srli_epi32::<15>(_mm256_add_epi32(_mm256_mullo_epi32(q, c255), half));
-                // Each half's four bytes land in its lowest 32 bits.
-                let words = _mm256_packus_epi32(q8, q8);
-                let bytes = _mm256_packus_epi16(words, words);
-                o[0] = _mm256_extract_epi32::<0>(bytes).to_le_bytes();
-                o[1] = _mm256_extract_epi32::<4>(bytes).to_le_bytes();
-            }
-            let x = 2 * pairs as i64;
-            inside_run(
-                px,
-                iw,
-                (u + x * du, du),
-                (v + x * dv, dv),
-                &mut out[2 * pairs..],
-                zero,
             );
+            inside_by_steps::<2>(px, iw, u, v, out, zero, step)
         }
     };
+    (avx512) => {
+        |px: &[Rgba], iw: usize, u: (i64, i64), v: (i64, i64), out: &mut [[u8; 4]], zero| {
+            use core::arch::x86_64::*;
+            let step = inside_run_simd!(
+                step 4, u.1, v.1,
+                _mm512_set1_epi32, _mm512_add_epi32, _mm512_sub_epi32, _mm512_mullo_epi32,
+                _mm512_srli_epi32, _mm512_min_epu32, _mm512_and_si512, _mm512_shuffle_epi32,
+                _mm512_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3),
+                // Built in registers: taps stored to an array and loaded back as one
+                // vector would wait for the stores.
+                |t: [u64; 4]| {
+                    let t = t.map(|x| x as i64);
+                    _mm512_cvtepu16_epi32(_mm256_set_epi64x(t[3], t[2], t[1], t[0]))
+                },
+                |a, b| _mm512_mask_blend_epi32(0xcccc, a, b),
+                |a, b| _mm512_mask_blend_epi32(0xaaaa, a, b),
+                |q| -> [[u8; 4]; 4] { bytemuck::cast(_mm512_cvtepi32_epi8(q)) }
+            );
+            inside_by_steps::<4>(px, iw, u, v, out, zero, step)
+        }
+    };
+    // One step of N pixels: `lanes` holds each lane's pixel index, `wide` widens tap k
+    // of the N pixels to their lanes, `bottom` and `odd` take lanes 2-3 and lanes 1, 3
+    // of each pixel from their second argument, `narrow` gives the pixels' bytes.
+    (step $n:literal, $du:expr, $dv:expr, $set1:ident, $add:ident, $sub:ident, $mul:ident,
+     $srli:ident, $min:ident, $and:ident, $shuffle:ident, $lanes:expr, $wide:expr,
+     $bottom:expr, $odd:expr, $narrow:expr) => {{
+        const N: usize = $n;
+        let lanes = $lanes;
+        let (pdu, pdv) = ($mul(lanes, $set1($du as i32)), $mul(lanes, $set1($dv as i32)));
+        let (frac, whole) = ($set1(0xffff), $set1(0x1_0000));
+        let (one, half, c255) = ($set1(ONE as i32), $set1(1 << 14), $set1(255));
+        let (wide, bottom, odd, narrow) = ($wide, $bottom, $odd, $narrow);
+        move |(u, v): (i64, i64), taps: [[u64; 4]; N]| -> [[u8; 4]; N] {
+            // Tap k of the N pixels.
+            let tap = |k: usize| wide(core::array::from_fn(|p| taps[p][k]));
+            // Weights, as `weights` computes them, in every lane of a pixel.
+            let uu = $add($set1(u as i32), pdu);
+            let vv = $add($set1(v as i32), pdv);
+            let fu = $srli::<1>($sub(whole, $and(uu, frac)));
+            let fv = $srli::<1>($sub(whole, $and(vv, frac)));
+            // Lanes 2 and 3 of a pixel take the bottom row's share.
+            let t = bottom(fv, $sub(one, fv));
+            let p = $srli::<15>($mul(t, fu));
+            let w = odd(p, $sub(t, p));
+            let sum = $add(
+                $add(
+                    $mul($shuffle::<0x00>(w), tap(0)),
+                    $mul($shuffle::<0x55>(w), tap(1)),
+                ),
+                $add(
+                    $mul($shuffle::<0xaa>(w), tap(2)),
+                    $mul($shuffle::<0xff>(w), tap(3)),
+                ),
+            );
+            let q = $min($srli::<15>($add(sum, half)), one);
+            narrow($srli::<15>($add($mul(q, c255), half)))
+        }
+    }};
 }
 
 /// Warps the intermediate image `px` (the full `view.intermediate` size, row-major) into
@@ -269,7 +224,7 @@ pub fn warp_rows(
 
 /// [`warp_rows`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT, POPCNT), bit-identical:
 /// the pixels whose four taps lie inside the intermediate image are warped two at a time
-/// by [`inside_run_avx2`].
+/// by [`inside_run_simd`].
 ///
 /// # Safety
 ///
@@ -287,12 +242,12 @@ pub fn warp_rows_x86_v3(
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
     let put = |y, r: &[[u8; 4]]| sink.put_row(y, r);
-    warp_generic(px, extents, view, rows, row, put, &inside_run_avx2!())
+    warp_generic(px, extents, view, rows, row, put, &inside_run_simd!(avx2))
 }
 
 /// [`warp_rows`] compiled for x86-64-v4 (AVX-512 F/BW/VL/DQ/CD on top of x86-64-v3),
 /// bit-identical: the pixels whose four taps lie inside the intermediate image, most of
-/// an image, are warped four at a time by [`inside_run_avx512`].
+/// an image, are warped four at a time by [`inside_run_simd`].
 ///
 /// # Safety
 ///
@@ -312,7 +267,7 @@ pub fn warp_rows_x86_v4(
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
     let put = |y, r: &[[u8; 4]]| sink.put_row(y, r);
-    warp_generic(px, extents, view, rows, row, put, &inside_run_avx512!())
+    warp_generic(px, extents, view, rows, row, put, &inside_run_simd!(avx512))
 }
 
 /// As [`warp_rows`], handing out rows at the intermediate image's full precision:
