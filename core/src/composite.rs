@@ -569,9 +569,12 @@ impl Kernels for Portable {
 
 /// Kernels given as closures: an instruction-set build writes them inside its
 /// `target_feature` function, so they are compiled with its features (and may call the
-/// vector intrinsics those features make safe).
+/// vector intrinsics those features make safe). Only the x86-64 builds have such
+/// functions.
+#[cfg(target_arch = "x86_64")]
 pub(crate) struct With<W, P, O>(pub W, pub P, pub O);
 
+#[cfg(target_arch = "x86_64")]
 impl<W, P, O> Kernels for With<W, P, O>
 where
     W: Fn(&[Voxel]),

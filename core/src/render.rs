@@ -5,7 +5,9 @@
 //! const-generic block ([`StaticWorkspace`]) whose size is fixed at compile time for a
 //! maximum volume and image.
 
-use crate::classify::{ColorLanes, ColorTable, Voxel};
+#[cfg(target_arch = "x86_64")]
+use crate::classify::Voxel;
+use crate::classify::{ColorLanes, ColorTable};
 use crate::composite::{self, Intermediate, Mode, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, Error};
