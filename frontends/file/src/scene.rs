@@ -616,9 +616,6 @@ impl Renderer {
         self.fov = fov;
     }
 
-    pub fn intermediate_pixels(&self, n: usize) -> &[Rgba] {
-        &self.pixels[..n]
-    }
     /// Number of compositing threads.
     pub fn threads(&self) -> usize {
         self.threads
