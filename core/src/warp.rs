@@ -420,7 +420,6 @@ fn warp_generic<T: Texel>(
         // Per row: its start position and the pixels xi..xj whose four taps lie inside.
         let mut inner = [(0i64, 0i64, 0usize, 0usize); TILE_ROWS];
         for (r, (out, plan)) in row.chunks_exact_mut(w).zip(&mut inner).take(n).enumerate() {
-            let out = &mut out[..w];
             let yc = (y0 + r) as f64 + 0.5;
             let u = to_fixed(m[0][0] * 0.5 + m[0][1] * yc + m[0][2]);
             let v = to_fixed(m[1][0] * 0.5 + m[1][1] * yc + m[1][2]);
@@ -472,7 +471,7 @@ fn warp_generic<T: Texel>(
             }
         }
         for (r, out) in row.chunks_exact(w).take(n).enumerate() {
-            put_row(y0 + r, &out[..w])?;
+            put_row(y0 + r, out)?;
         }
         y0 += n;
     }
