@@ -328,7 +328,13 @@ mod tests {
                 width: size,
                 height: size + case,
             };
-            let view = view::Factorization::new(&grid, &cam).unwrap();
+            let mut view = view::Factorization::new(&grid, &cam).unwrap();
+            // Every sixth case maps output pixel centres onto the intermediate grid (as
+            // a caller may, the map is the caller's to change), where one weight is all
+            // of one.
+            if case % 6 == 5 {
+                view.image_to_intermediate = [[1.0, 0.0, -0.5], [0.0, 1.0, -0.5], [0.0, 0.0, 1.0]];
+            }
             let [iw, ih] = view.intermediate;
             // Odd cases: background outside a disc, so the extents have something to skip.
             let (cx, cy, r2) = (iw as f64 / 2.0, ih as f64 / 2.0, (iw * iw) as f64 / 9.0);
@@ -341,6 +347,11 @@ mod tests {
                     }
                     match r % 4 {
                         0 => [0; 4],
+                        // Cases 2 and 3 mod 4: at most one, often exactly one (opaque
+                        // pixels), as a compositor leaves them; the others: any u16.
+                        1 if case % 4 >= 2 => core::array::from_fn(|c| {
+                            ((r >> (16 * c)) as u16).min(shearwarp_core::fixed::ONE as u16)
+                        }),
                         1 => core::array::from_fn(|c| (r >> (16 * c)) as u16),
                         _ => core::array::from_fn(|c| ((r >> (15 * c)) % (1 << 15)) as u16),
                     }
