@@ -217,11 +217,13 @@ macro_rules! inside_run_madd {
             );
             // Bytes of pixels 0, 2 (low half) and 1, 3 (high half) in pixel order.
             let order = _mm256_setr_epi32(0, 4, 1, 5, 0, 0, 0, 0);
-            let taps = |x: i64| -> Option<[Rgba; 4]> {
+            // The top and the bottom pair of taps of pixel x, each one 16-byte load.
+            let taps = |x: i64| -> Option<(__m128i, __m128i)> {
                 let (ux, vx) = (u + x * du, v + x * dv);
                 let base = (vx >> FRAC) as usize * iw + (ux >> FRAC) as usize;
                 let q = px.get(base..base.checked_add(iw + 2)?)?;
-                Some([q[0], q[1], q[iw], q[iw + 1]])
+                let load = |p: &[Rgba]| bytemuck::pod_read_unaligned(bytemuck::cast_slice(p));
+                Some((load(&q[..2]), load(&q[iw..])))
             };
             let steps = out.len() / 4;
             for (k, o) in out.chunks_exact_mut(4).enumerate() {
@@ -233,14 +235,9 @@ macro_rules! inside_run_madd {
                     inside_run(px, iw, (ux, du), (vx, dv), o, zero);
                     continue;
                 };
-                // Rows of two pixels: top taps of pixels a and b, or their bottom taps.
-                let pair = |a: &[Rgba; 4], b: &[Rgba; 4], r: usize| -> __m256i {
-                    let lo: __m128i = bytemuck::cast([a[2 * r], a[2 * r + 1]]);
-                    let hi: __m128i = bytemuck::cast([b[2 * r], b[2 * r + 1]]);
-                    _mm256_set_m128i(hi, lo)
-                };
-                let (top01, bot01) = (pair(&t0, &t1, 0), pair(&t0, &t1, 1));
-                let (top23, bot23) = (pair(&t2, &t3, 0), pair(&t2, &t3, 1));
+                // Taps of two pixels, a in the low half.
+                let (top01, bot01) = (_mm256_set_m128i(t1.0, t0.0), _mm256_set_m128i(t1.1, t0.1));
+                let (top23, bot23) = (_mm256_set_m128i(t3.0, t2.0), _mm256_set_m128i(t3.1, t2.1));
                 let max = _mm256_max_epu16(
                     _mm256_max_epu16(top01, bot01),
                     _mm256_max_epu16(top23, bot23),
@@ -429,6 +426,44 @@ fn background(extents: &[[u32; 2]], a: (i64, i64), b: (i64, i64)) -> bool {
         .is_some_and(|lines| lines.iter().all(|&[f, l]| f >= l || u1 < f || u0 >= l))
 }
 
+/// True if every inside pixel of a tile (columns `c0..c1` of rows whose start positions
+/// and inside pixels `xi..xj` are `rows`, the positions stepping by `(du, dv)`) reads
+/// only background: one test of the box of the tile's corners against the extents,
+/// where [`background`] makes one per [`SKIP_RUN`] pixels of each row. The rows' starts
+/// are rounded from one affine map, so they are monotone in the row and every position
+/// of the tile lies in the box of its four corners. A box reaching past the image's top
+/// or left edge is not background.
+#[inline(always)]
+fn tile_is_background(
+    extents: &[[u32; 2]],
+    rows: &[(i64, i64, usize, usize)],
+    (c0, c1): (usize, usize),
+    (du, dv): (i64, i64),
+) -> bool {
+    let (mut a, mut b) = (usize::MAX, 0);
+    for &(_, _, xi, xj) in rows {
+        let (ra, rb) = (xi.max(c0), xj.min(c1));
+        if ra < rb {
+            (a, b) = (a.min(ra), b.max(rb));
+        }
+    }
+    let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+        return false;
+    };
+    if a >= b {
+        return false;
+    }
+    let at = |r: &(i64, i64, usize, usize), x: usize| (r.0 + x as i64 * du, r.1 + x as i64 * dv);
+    let corners = [at(first, a), at(first, b - 1), at(last, a), at(last, b - 1)];
+    let lo = corners
+        .iter()
+        .fold((i64::MAX, i64::MAX), |m, p| (m.0.min(p.0), m.1.min(p.1)));
+    let hi = corners
+        .iter()
+        .fold((i64::MIN, i64::MIN), |m, p| (m.0.max(p.0), m.1.max(p.1)));
+    lo.0 >= 0 && lo.1 >= 0 && background(extents, lo, hi)
+}
+
 /// An output pixel of the warp. A trait rather than a pair of closures: the closures
 /// were called out of line from the pixel loop (a tenth of `perf`'s samples of a
 /// brainsmall run at 512²).
@@ -545,6 +580,14 @@ fn warp_generic<T: Texel>(
         // a tile's rows reuse them while they are still cached.
         for c0 in (0..w).step_by(TILE_COLS) {
             let c1 = (c0 + TILE_COLS).min(w);
+            if let Some(ext) = extents {
+                if tile_is_background(ext, &inner[..n], (c0, c1), (du, dv)) {
+                    for (out, &(_, _, xi, xj)) in row.chunks_exact_mut(w).zip(&inner).take(n) {
+                        out[xi.max(c0)..xj.min(c1).max(xi.max(c0))].fill(zero);
+                    }
+                    continue;
+                }
+            }
             for (out, &(u, v, xi, xj)) in row.chunks_exact_mut(w).zip(&inner).take(n) {
                 let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
                 let inside = |from: usize, to: usize, out: &mut [T]| {
