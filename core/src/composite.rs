@@ -306,6 +306,9 @@ impl<'b> Row<'b> {
         let mut v = 0usize;
         let mut lo = usize::MAX;
         let mut hi = 0;
+        // The last window of needed voxels computed: its first voxel and its bits
+        // ([`Needed::voxels`]).
+        let mut word = (usize::MAX / 2, 0u64);
         for (a, b) in Spans::new(runs) {
             let base = v;
             v += b - a;
@@ -318,12 +321,22 @@ impl<'b> Row<'b> {
                 }
                 Some(n) => {
                     // Shade only the voxels that open pixels of the reading scanlines
-                    // reach, 64 at a time from the opaque-pixel bitmaps.
-                    for (x, mut m) in n.masks(a, b) {
+                    // reach, 64 at a time from the opaque-pixel bitmaps; a span that
+                    // starts inside the last window of 64 computed reads it from there.
+                    let mut x = a;
+                    while x < b {
+                        if x >= word.0 + 64 || x < word.0 {
+                            word = (x, n.voxels(x));
+                        }
+                        // Voxels x.. are bits off.. of the window.
+                        let off = x - word.0;
+                        let mut m = (word.1 >> off) & opaque::ones((b - x).min(64 - off));
+                        let at = x;
+                        x = word.0 + 64;
                         while m != 0 {
                             let z = m.trailing_zeros() as usize;
                             let len = (!(m >> z)).trailing_zeros() as usize;
-                            let (c, d) = (x + z, x + z + len);
+                            let (c, d) = (at + z, at + z + len);
                             m &= !opaque::ones(z + len);
                             // The extent covers shaded voxels only: the others stay
                             // zero, and zero taps leave a pixel as it is.
@@ -376,15 +389,6 @@ impl<'a> Needed<'a> {
             .into_iter()
             .flatten()
             .all(|l| opaque::all_closed(l, self.width, a, b))
-    }
-
-    /// The voxels of positions `a..b` that an open pixel reads, 64 at a time: `(x, m)`
-    /// with bit `t` of `m` set if voxel `x + t` is read.
-    #[inline(always)]
-    fn masks(&self, a: usize, b: usize) -> impl Iterator<Item = (usize, u64)> + '_ {
-        (a..b)
-            .step_by(64)
-            .map(move |x| (x, self.voxels(x) & opaque::ones(b - x)))
     }
 
     /// Bit `t` set if voxel `x + t` is read by an open pixel: it is not when both of its
