@@ -177,13 +177,13 @@ macro_rules! inside_run_simd {
 /// offset takes exactly `2^14·2^15 = 2^29` from every sum, and adding it back gives the
 /// sum [`interior`] takes: bit-identical to [`inside_run`] with [`Texel::inner`] for
 /// `[u8; 4]` (the weights are [`weights`]'s, from the low 16 bits of wrapping 32-bit
-/// positions, as in [`inside_run_simd`]). A weight can be `ONE` itself (a position on the grid in both directions,
-/// or on it in one and a step short in the other), and a caller's taps may exceed
-/// `ONE` (no compositor writes them): a step with either goes to [`inside_run`], as do
-/// steps with a tap outside the image (only if the caller's interval were wrong) and the
-/// pixels left over. Rounding to bytes is `vpmulhrsw` by 255, which is exactly
-/// `(q·255 + 2^14) >> 15`, after a saturating pack that turns `q = ONE` into `ONE − 1`
-/// (both give 255).
+/// positions, as in [`inside_run_simd`]). A weight can be `ONE` itself (a position on
+/// the grid in both directions, or on it in one and a step short in the other), and a
+/// caller's taps may exceed `ONE` (no compositor writes them): a step with either goes
+/// to [`inside_run`], as do steps with a tap outside the image (only if the caller's
+/// interval were wrong) and the pixels left over. Rounding to bytes is `vpmulhrsw` by
+/// 255, which is exactly `(q·255 + 2^14) >> 15`, after a saturating pack that turns
+/// `q = ONE` into `ONE − 1` (both give 255).
 #[cfg(target_arch = "x86_64")]
 macro_rules! inside_run_madd {
     () => {
@@ -580,14 +580,8 @@ fn warp_generic<T: Texel>(
         // a tile's rows reuse them while they are still cached.
         for c0 in (0..w).step_by(TILE_COLS) {
             let c1 = (c0 + TILE_COLS).min(w);
-            if let Some(ext) = extents {
-                if tile_is_background(ext, &inner[..n], (c0, c1), (du, dv)) {
-                    for (out, &(_, _, xi, xj)) in row.chunks_exact_mut(w).zip(&inner).take(n) {
-                        out[xi.max(c0)..xj.min(c1).max(xi.max(c0))].fill(zero);
-                    }
-                    continue;
-                }
-            }
+            let empty_tile =
+                extents.is_some_and(|e| tile_is_background(e, &inner[..n], (c0, c1), (du, dv)));
             for (out, &(u, v, xi, xj)) in row.chunks_exact_mut(w).zip(&inner).take(n) {
                 let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
                 let inside = |from: usize, to: usize, out: &mut [T]| {
@@ -597,6 +591,7 @@ fn warp_generic<T: Texel>(
                 let (a, b) = (xi.max(c0), xj.min(c1));
                 match extents {
                     _ if a >= b => {}
+                    _ if empty_tile => out[a..b].fill(zero),
                     None => inside(a, b, out),
                     Some(ext) => {
                         // Runs of SKIP_RUN pixels over background are filled; the pixels
