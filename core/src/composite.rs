@@ -760,8 +760,8 @@ pub(crate) use over_run_simd;
 /// not prefetch; walking the row ahead streams the slice into the cache instead (about
 /// 10 % of a frame on the MR head, which otherwise waits on those reads). The loads make
 /// the core wait for memory when the row is not cached, which a prefetch instruction
-/// does not (the x86-64-v3 and v4 builds use one, see
-/// [`crate::render::composite_band_until_x86_v3`]). Bare-metal targets have no data
+/// does not (every x86-64 build uses one, see
+/// [`crate::render::composite_band_until_x86_64`]). Bare-metal targets have no data
 /// cache to fill, so there it does nothing.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
 #[cfg_attr(not(target_arch = "x86_64"), inline)]
