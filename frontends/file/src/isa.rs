@@ -1,16 +1,15 @@
 //! Which instruction-set build of the core's compositing and warp loops to run.
 //!
-//! The core compiles its band compositor three times on x86-64: for the baseline
-//! (SSE2), for x86-64-v3 (AVX2) and for x86-64-v4 (AVX-512), and its warp for the same
-//! three levels. The wider builds shade voxels, composite pixels and warp
-//! pixels with vector kernels that multiply 32-bit lanes (which SSE2 cannot do in one
-//! instruction); all three prefetch the rows ahead instead of loading them (the baseline
-//! build through `render::composite_band_until_x86_64`, which only enables SSE and
-//! SSE2, so it runs on every x86-64 CPU); every kernel does
-//! the portable one's integer arithmetic, so the images are bit-identical (the tests
-//! here and the goldens check). The core may not call the wider builds itself (it has
-//! no way to ask the CPU and forbids `unsafe`), so this module asks at run time and
-//! dispatches.
+//! On x86-64 the core compiles its band compositor for three levels: the baseline
+//! (SSE2, `render::composite_band_until_x86_64`, which enables only SSE and SSE2 and
+//! so runs on every x86-64 CPU), x86-64-v3 (AVX2) and x86-64-v4 (AVX-512), and its warp
+//! for the same three. All three compositors prefetch the rows ahead instead of loading
+//! them; the wider builds also shade voxels, composite pixels and warp pixels with
+//! vector kernels that multiply 32-bit lanes (which SSE2 cannot do in one instruction).
+//! Every kernel does the portable one's integer arithmetic, so the images are
+//! bit-identical (the tests here and the goldens check). The core may not call these
+//! builds itself (it has no way to ask the CPU and forbids `unsafe`), so this module
+//! asks at run time and dispatches.
 
 use shearwarp_core::composite::{Intermediate, Rgba, SliceTables};
 use shearwarp_core::render::{self, Frame};
@@ -198,8 +197,9 @@ mod tests {
     /// The wider builds replace the per-voxel shading step and the per-pixel "over" step
     /// with vector code; with every table entry drawn from the whole `u16` range
     /// (colours, shading factors and opacities a real lighting never produces, normal
-    /// codes past the table) they must still give the baseline's pixels bit for bit,
-    /// with and without depth cueing.
+    /// codes past the table) they must still give the pixels of the core's portable
+    /// compositor bit for bit, as must the baseline build, with and without depth
+    /// cueing.
     #[test]
     fn wider_builds_shade_extreme_tables_like_the_baseline() {
         let mut rnd = xorshift(0x2545_f491_4f6c_dd1d);
@@ -280,39 +280,29 @@ mod tests {
             let tables = frame.tables(&shade, None);
             let [iw, ih] = frame.view.intermediate;
             let pix = view::max_intermediate_pixels(dims);
-            let images: Vec<Vec<Rgba>> = levels
-                .iter()
-                .map(|&isa| {
-                    let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
-                    let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
-                    let mut rows = vec![[0u16; 4]; 64];
-                    let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
-                    let go = &mut || true;
-                    composite_band_until(
-                        isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
-                    )
-                    .unwrap();
-                    img.pixels().to_vec()
-                })
-                .collect();
-            assert!(
-                images[0].iter().any(|p| p[3] != 0),
-                "nothing was composited"
-            );
-            // The core's portable compositor (what non-x86 targets run) is the
-            // reference for every build, the baseline x86-64 one included.
-            let portable = {
+            // One composite of the frame by the build for `isa`, or by the core's
+            // portable compositor (what non-x86 targets run) for `None`: the reference
+            // for every build, the baseline x86-64 one included.
+            let composite = |isa: Option<Isa>| -> Vec<Rgba> {
                 let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
                 let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
                 let mut rows = vec![[0u16; 4]; 64];
                 let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
                 let go = &mut || true;
-                render::composite_band_until(
-                    &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
-                )
+                match isa {
+                    Some(isa) => composite_band_until(
+                        isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
+                    ),
+                    None => render::composite_band_until(
+                        &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
+                    ),
+                }
                 .unwrap();
                 img.pixels().to_vec()
             };
+            let portable = composite(None);
+            assert!(portable.iter().any(|p| p[3] != 0), "nothing was composited");
+            let images: Vec<Vec<Rgba>> = levels.iter().map(|&isa| composite(Some(isa))).collect();
             for (isa, img) in levels.iter().zip(&images) {
                 assert!(
                     img == &portable,
