@@ -390,31 +390,6 @@ pub struct Look {
     pub shadows: bool,
 }
 
-/// A sink for a horizontal strip of the frame (rows `first_row..`).
-struct StripSink<'a> {
-    first_row: usize,
-    width: usize,
-    pixels: &'a mut [[u8; 4]],
-}
-
-impl warp::PixelSink for StripSink<'_> {
-    fn put_row(&mut self, y: usize, row: &[[u8; 4]]) -> Result<(), Error> {
-        let got = self.pixels.len();
-        let start = y.checked_sub(self.first_row).ok_or(Error::BadParameter {
-            reason: "warp row outside its strip",
-        })? * self.width;
-        self.pixels
-            .get_mut(start..start + row.len())
-            .ok_or(Error::BufferTooSmall {
-                what: "frame strip",
-                needed: start + row.len(),
-                got,
-            })?
-            .copy_from_slice(row);
-        Ok(())
-    }
-}
-
 /// The part of an `iw×ih` intermediate image not yet handed to one of `threads`
 /// threads: its first scanline, pixels and opaque-pixel bitmap.
 struct Unclaimed<'a> {
@@ -840,24 +815,28 @@ impl Renderer {
         })?;
         let [w, h] = view.image;
         frame.resize(w * h, [0; 4]);
+        if w == 0 || h == 0 {
+            return Ok(());
+        }
         let ext = self.extents(pixels, iw, ih)?;
         let ext = Some(&ext[..]);
+        // Strips of TILE_ROWS rows, each warped in place: the strip is the warp's row
+        // buffer ([`warp::InPlace`]).
+        const STRIP: usize = warp::TILE_ROWS;
+        let strip = |i: usize, chunk: &mut [[u8; 4]]| {
+            let rows = i * STRIP..i * STRIP + chunk.len() / w;
+            isa::warp_rows(self.isa, pixels, ext, view, rows, chunk, &mut warp::InPlace)
+        };
         let Some(pool) = self.pool.as_ref().filter(|_| self.rows.len() > 1) else {
-            let mut row = vec![[0u8; 4]; warp::TILE_ROWS * w];
-            let mut sink = FrameBuffer {
-                width: w,
-                pixels: frame,
-            };
-            return isa::warp_rows(self.isa, pixels, ext, view, 0..h, &mut row, &mut sink);
+            let mut strips = frame.chunks_mut(STRIP * w).enumerate();
+            return strips.try_for_each(|(i, chunk)| strip(i, chunk));
         };
         // Every row is computed on its own, so the result does not depend on the split.
-        // Strips of WARP_ROWS rows are claimed as threads finish: the object rarely
-        // covers the top and bottom halves of the image alike.
-        const WARP_ROWS: usize = warp::TILE_ROWS;
+        // Strips are claimed as threads finish: the object rarely covers the top and
+        // bottom halves of the image alike.
         const PANICKED: &str = "a warp thread panicked";
-        let strips = Mutex::new(frame.chunks_mut(WARP_ROWS * w).enumerate());
+        let strips = Mutex::new(frame.chunks_mut(STRIP * w).enumerate());
         let work = |_| -> Result<(), Error> {
-            let mut row = vec![[0u8; 4]; WARP_ROWS * w];
             loop {
                 let next = strips
                     .lock()
@@ -866,13 +845,7 @@ impl Renderer {
                 let Some((i, chunk)) = next else {
                     return Ok(());
                 };
-                let mut sink = StripSink {
-                    first_row: i * WARP_ROWS,
-                    width: w,
-                    pixels: chunk,
-                };
-                let rows = i * WARP_ROWS..(i + 1) * WARP_ROWS;
-                isa::warp_rows(self.isa, pixels, ext, view, rows, &mut row, &mut sink)?;
+                strip(i, chunk)?;
             }
         };
         on_threads(pool, 0..self.rows.len(), work, PANICKED)
