@@ -897,10 +897,6 @@ mod tests {
         }
     }
 
-    /// Intermediate images holding a blob (an ellipse of random pixels, now and then a
-    /// stray pixel outside it) in background, warped through random views one row at a
-    /// time, in tiles of rows, and skipping background by the extents: every output
-    /// pixel is the same, and the extents bound exactly the pixels that are not zero.
     /// The image of `view` warped from `px` in strips of `k` rows, each strip the warp's
     /// row buffer and its destination ([`InPlace`]).
     fn in_place(px: &[Rgba], view: &Factorization, k: usize) -> [[u8; 4]; 160 * 64] {
@@ -913,6 +909,11 @@ mod tests {
         frame
     }
 
+    /// Intermediate images holding a blob (an ellipse of random pixels, now and then a
+    /// stray pixel outside it) in background, warped through random views one row at a
+    /// time, in tiles of rows, skipping background by the extents, and in place in strips
+    /// of the frame (in a perspective view of the same grid too): every output pixel is
+    /// the same, and the extents bound exactly the pixels that are not zero.
     #[test]
     fn skipping_background_by_extents_changes_no_pixel() {
         use crate::classify::Grid;
