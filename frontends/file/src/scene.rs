@@ -782,14 +782,14 @@ impl Renderer {
                 };
                 let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
                 let go = &mut || keep_going();
-                let done = isa::composite_band_until(
+                if !isa::composite_band_until(
                     isa, &mut src, &frame, &tables, &mut img, rows, None, go,
-                )?;
-                warp::extents(img.pixels(), iw, e)?;
-                if !done {
+                )? {
+                    // The frame is abandoned and holds no extents: none to scan.
                     stopped.store(true, Ordering::Relaxed);
                     return Ok(());
                 }
+                warp::extents(img.pixels(), iw, e)?;
             }
         };
         let each = self.rows.iter_mut().map(|rows| (rows, source.clone()));
@@ -892,9 +892,7 @@ impl Renderer {
         })?;
         Ok(out)
     }
-}
 
-impl Renderer {
     /// The columns of each scanline of the `iw×ih` intermediate image `px` that hold
     /// anything ([`warp::extents`]), for the warp to skip the background by: those the
     /// compositing threads found, or a scan now if they are not of this image.
