@@ -129,6 +129,40 @@ impl<'a> Intermediate<'a> {
         })
     }
 
+    /// Keeps the first `rows` scanlines and returns the others, with their pixels and
+    /// opaque bits as they are, as a band of their own. A thread that has run out of
+    /// work takes over half of another's band this way between two slices, and
+    /// composites the remaining slices into it ([`crate::render::composite_band_until`]
+    /// from the position the other reached): the two bands then give the same pixels
+    /// as the one would have.
+    pub fn split_off(&mut self, rows: usize) -> Result<Intermediate<'a>, Error> {
+        if rows > self.rows {
+            return Err(Error::BadParameter {
+                reason: "band split below its last scanline",
+            });
+        }
+        let (p, tail_p) = core::mem::take(&mut self.pixels).split_at_mut(rows * self.width);
+        let (o, tail_o) = core::mem::take(&mut self.opaque).split_at_mut(rows * self.stride);
+        self.pixels = p;
+        self.opaque = o;
+        let tail = Intermediate {
+            width: self.width,
+            height: self.height,
+            row0: self.row0 + rows,
+            rows: self.rows - rows,
+            pixels: tail_p,
+            opaque: tail_o,
+            stride: self.stride,
+        };
+        self.rows = rows;
+        Ok(tail)
+    }
+
+    /// Scanlines held.
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
     /// Width in pixels.
     pub fn width(&self) -> usize {
         self.width

@@ -286,7 +286,8 @@ pub fn composite_band<S: SliceSource>(
     rows: &mut [Rgba],
     shadow: Option<(&mut [u16], &mut [u16])>,
 ) -> Result<(), Error> {
-    composite_band_until(source, frame, tables, img, rows, shadow, &mut || true).map(|_| ())
+    let all = 0..frame.view.dims[2];
+    composite_band_until(source, frame, tables, img, rows, shadow, all, &mut || true).map(|_| ())
 }
 
 /// Asks the cache for the 64-byte lines of a voxel row the compositor reads a few rows
@@ -311,6 +312,7 @@ macro_rules! prefetch {
 macro_rules! band_compositor {
     ($(#[$attr:meta])* $name:ident, $kern:expr) => {
         $(#[$attr])*
+        #[allow(clippy::too_many_arguments)]
         pub fn $name<S: SliceSource>(
             source: &mut S,
             frame: &Frame,
@@ -318,19 +320,29 @@ macro_rules! band_compositor {
             img: &mut Intermediate<'_>,
             rows: &mut [Rgba],
             shadow: Option<(&mut [u16], &mut [u16])>,
+            slices: core::ops::Range<usize>,
             keep_going: &mut dyn FnMut() -> bool,
-        ) -> Result<bool, Error> {
-            band(source, frame, tables, img, rows, shadow, keep_going, $kern)
+        ) -> Result<usize, Error> {
+            band(source, frame, tables, img, rows, shadow, slices, keep_going, $kern)
         }
     };
 }
 
 band_compositor! {
-    /// [`composite_band`] that asks `keep_going` before every slice and stops when it
-    /// says no: a frontend interrupts a frame that a newer view has made useless after at
-    /// most one slice of work. Returns whether the band was finished (an interrupted
-    /// band's pixels hold the slices composited so far, front to back: a usable,
-    /// incomplete image).
+    /// [`composite_band`] for the slices at positions `slices` of the front-to-back
+    /// order (`0..view.dims[2]` is the whole frame), asking `keep_going` before every
+    /// slice and stopping when it says no. Returns the position reached: `slices.end`
+    /// when every slice was composited, the position of the first slice left out
+    /// otherwise.
+    ///
+    /// The band's pixels always hold the slices composited so far, front to back, so a
+    /// caller may stop and go on later from the position returned: a frontend interrupts
+    /// a frame that a newer view has made useless after at most one slice of work (the
+    /// pixels are a usable, incomplete image), and a thread that runs out of work takes
+    /// over the lower scanlines of another thread's band between two slices
+    /// ([`Intermediate::split_off`]). Depth cueing is applied after the last slice
+    /// (position `view.dims[2] - 1`) is composited. Shadows sweep their buffer with the slices, so with
+    /// shadows `slices` must be the whole frame.
     composite_band_until,
     &composite::Portable
 }
@@ -418,10 +430,17 @@ fn band<S: SliceSource>(
     img: &mut Intermediate<'_>,
     rows: &mut [Rgba],
     mut shadow: Option<(&mut [u16], &mut [u16])>,
+    slices: core::ops::Range<usize>,
     keep_going: &mut dyn FnMut() -> bool,
     kern: &impl composite::Kernels,
-) -> Result<bool, Error> {
+) -> Result<usize, Error> {
     let view = &frame.view;
+    let nk = view.dims[2];
+    if slices.start > slices.end || slices.end > nk {
+        return Err(Error::BadParameter {
+            reason: "slice range lies outside the volume",
+        });
+    }
     let row_len = composite::rows_needed(view);
     need("row buffer", row_len, rows.len())?;
     // Cleared once here; every slice leaves the rows zero again.
@@ -432,6 +451,11 @@ fn band<S: SliceSource>(
         });
     }
     if let Some(sf) = &frame.shadow {
+        if slices != (0..nk) {
+            return Err(Error::BadParameter {
+                reason: "shadows are computed over every slice in one call",
+            });
+        }
         if img.first_row() != 0 || img.pixels().len() != img.width() * img.height() {
             return Err(Error::BadParameter {
                 reason: "shadows are computed in a single band covering the whole image",
@@ -447,9 +471,9 @@ fn band<S: SliceSource>(
         need("shadow buffer", sf.size[0] * sf.size[1], alpha.len())?;
         alpha[..sf.size[0] * sf.size[1]].fill(0);
     }
-    for idx in 0..view.dims[2] {
+    for idx in slices.clone() {
         if !keep_going() {
-            return Ok(false);
+            return Ok(idx);
         }
         let k = view.slice_at(idx);
         match (&frame.shadow, shadow.as_mut()) {
@@ -495,10 +519,13 @@ fn band<S: SliceSource>(
             }
         }
     }
-    if let Some(d) = &frame.depth {
-        img.apply_depth_cue(d);
+    // Once per scanline: when the last slice has been composited into it.
+    if slices.start < nk && slices.end == nk {
+        if let Some(d) = &frame.depth {
+            img.apply_depth_cue(d);
+        }
     }
-    Ok(true)
+    Ok(slices.end)
 }
 
 /// Renders one frame of `source` into `sink` on the calling thread.
@@ -658,37 +685,83 @@ mod tests {
         }
     }
 
-    #[test]
-    fn rle_renderer_equals_dense_compositing_for_many_views() {
-        let grid = Grid::new([23, 17, 29], [1.0, 1.3, 0.8]).unwrap();
+    /// [`volume`] on `grid`, classified with an opacity ramp from 40 to 255.
+    fn classified(grid: &Grid) -> Vec<Voxel> {
         let data = volume(grid.dims);
         let pts = [(40.0, [0.0]), (120.0, [0.6]), (255.0, [1.0])];
         let mut table = [0u8; 256];
         OpacityTf::new(&pts).unwrap().build_table(&mut table);
         let mut dense = vec![Voxel::default(); grid.voxel_count()];
-        classify::classify(&grid, Scalars::U8(&data), &table, None, &mut dense).unwrap();
+        classify::classify(grid, Scalars::U8(&data), &table, None, &mut dense).unwrap();
+        dense
+    }
+
+    /// One run-length-encoded copy per axis of `dense` (opacity threshold 3).
+    fn encode_all(dense: &[Voxel], grid: &Grid) -> Vec<(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)> {
         let threshold = 3;
-        let mut store: Vec<(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)> = Vec::new();
+        let mut store = Vec::new();
         for axis in Axis::ALL {
-            let sz = rle::measure(&dense, &grid, axis, threshold).unwrap();
+            let sz = rle::measure(dense, grid, axis, threshold).unwrap();
             let mut r = vec![0; sz.runs];
             let mut v = vec![Voxel::default(); sz.voxels];
             let mut s = vec![ScanIndex::default(); sz.scans];
-            rle::encode(&dense, &grid, axis, threshold, &mut r, &mut v, &mut s).unwrap();
+            rle::encode(dense, grid, axis, threshold, &mut r, &mut v, &mut s).unwrap();
             store.push((r, v, s));
         }
-        let axes: Vec<RleAxis<'_>> = Axis::ALL
+        store
+    }
+
+    fn axes_of<'a>(
+        grid: &Grid,
+        store: &'a [(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)],
+    ) -> Vec<RleAxis<'a>> {
+        Axis::ALL
             .iter()
             .map(|&a| {
                 let (r, v, s) = &store[a as usize];
                 RleAxis::new(grid.dims, a, r, v, s).unwrap()
             })
-            .collect();
-        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
-        let color: ColorTable = core::array::from_fn(|q| {
+            .collect()
+    }
+
+    /// Unshaded compositing with `color`, early ray termination at 0.95.
+    fn unlit(color: &ColorTable) -> Settings<'_> {
+        Settings {
+            mode: Mode::Composite,
+            color,
+            lighting: None,
+            ert_threshold: 0.95,
+            depth_cue: None,
+            shadows: false,
+        }
+    }
+
+    /// A 16×16 view, turned a little about both axes.
+    fn small_camera() -> Camera {
+        Camera {
+            rotate_x: 10.0,
+            rotate_y: 20.0,
+            width: 16,
+            height: 16,
+        }
+    }
+
+    /// Red rising and green falling with the scalar.
+    fn ramp_colours() -> ColorTable {
+        core::array::from_fn(|q| {
             let x = (q as u32 * ONE / 255) as u16;
             [x, (ONE as u16) - x, ONE as u16 / 2]
-        });
+        })
+    }
+
+    #[test]
+    fn rle_renderer_equals_dense_compositing_for_many_views() {
+        let grid = Grid::new([23, 17, 29], [1.0, 1.3, 0.8]).unwrap();
+        let dense = classified(&grid);
+        let store = encode_all(&dense, &grid);
+        let axes = axes_of(&grid, &store);
+        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let color = ramp_colours();
         let lighting = Lighting::default();
         let mut shade = ShadeTable::UNSHADED;
         let mut checked = 0;
@@ -777,6 +850,140 @@ mod tests {
         assert_eq!(checked, 21);
     }
 
+    /// A band composited up to some slice, split, and both parts composited from there
+    /// to the last slice (what a thread does when it takes over half of another's band)
+    /// give the pixels of the band composited in one go, depth cueing included. Fails
+    /// if a split loses or repeats a slice, if the tail lands on the wrong scanlines, or
+    /// if depth cueing is applied before the last slice or twice.
+    #[test]
+    fn a_band_split_between_slices_composites_like_the_whole() {
+        let grid = Grid::new([23, 17, 29], [1.0, 1.3, 0.8]).unwrap();
+        let dense = classified(&grid);
+        let store = encode_all(&dense, &grid);
+        let axes = axes_of(&grid, &store);
+        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let color = ramp_colours();
+        let lighting = Lighting::default();
+        let mut shade = ShadeTable::UNSHADED;
+        let mut rows = vec![[0u16; 4]; 64];
+        let mut splits = 0;
+        for (rx, ry) in [(20.0, 35.0), (-60.0, 10.0), (10.0, 100.0)] {
+            let cam = Camera {
+                rotate_x: rx,
+                rotate_y: ry,
+                width: 48,
+                height: 40,
+            };
+            let settings = Settings {
+                mode: Mode::Composite,
+                color: &color,
+                lighting: Some(&lighting),
+                ert_threshold: 0.9,
+                depth_cue: Some(crate::depth::DepthCue {
+                    front: 0.9,
+                    density: 1.5,
+                }),
+                shadows: false,
+            };
+            let frame = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
+            let tables = frame.tables(&shade, None);
+            let [iw, ih] = frame.view.intermediate;
+            let nk = frame.view.dims[2];
+            let go = &mut || true;
+            let mut whole = vec![[0u16; 4]; iw * ih];
+            let mut links = vec![0; iw * ih];
+            let mut img = Intermediate::new(iw, ih, &mut whole, &mut links).unwrap();
+            let reached = composite_band_until(
+                &mut vol,
+                &frame,
+                &tables,
+                &mut img,
+                &mut rows,
+                None,
+                0..nk,
+                go,
+            )
+            .unwrap();
+            assert_eq!(reached, nk);
+            for at in [0, 1, nk / 3, nk - 1, nk] {
+                for cut in [0, 1, ih / 2, ih] {
+                    let mut px = vec![[0u16; 4]; iw * ih];
+                    let mut links = vec![0; iw * ih];
+                    let mut top = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
+                    let mut run = |img: &mut Intermediate<'_>, slices| {
+                        composite_band_until(
+                            &mut vol, &frame, &tables, img, &mut rows, None, slices, go,
+                        )
+                        .unwrap()
+                    };
+                    assert_eq!(run(&mut top, 0..at), at);
+                    let mut bottom = top.split_off(cut).unwrap();
+                    assert_eq!((top.rows(), bottom.first_row()), (cut, cut));
+                    assert_eq!(run(&mut bottom, at..nk), nk);
+                    assert_eq!(run(&mut top, at..nk), nk);
+                    let _ = (top, bottom);
+                    assert!(
+                        px == whole,
+                        "view {rx} {ry}: split at slice {at}, row {cut}"
+                    );
+                    splits += 1;
+                }
+            }
+            assert!(
+                whole.iter().any(|p| p[3] > 1000),
+                "view {rx} {ry} composites"
+            );
+        }
+        assert_eq!(splits, 60);
+    }
+
+    /// `keep_going` stops the band before a slice and the position returned is that
+    /// slice's; slice ranges outside the volume and splits past the band are errors.
+    #[test]
+    fn stopping_reports_the_position_and_bad_ranges_are_errors() {
+        let grid = Grid::new([9, 7, 11], [1.0; 3]).unwrap();
+        let dense = classified(&grid);
+        let store = encode_all(&dense, &grid);
+        let axes = axes_of(&grid, &store);
+        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let color = ramp_colours();
+        let settings = unlit(&color);
+        let cam = small_camera();
+        let mut shade = ShadeTable::UNSHADED;
+        let frame = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
+        let tables = frame.tables(&shade, None);
+        let [iw, ih] = frame.view.intermediate;
+        let nk = frame.view.dims[2];
+        let mut px = vec![[0u16; 4]; iw * ih];
+        let mut links = vec![0; iw * ih];
+        let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
+        let mut rows = vec![[0u16; 4]; 64];
+        let mut asked = 0;
+        let mut three = || {
+            asked += 1;
+            asked <= 3
+        };
+        let r = composite_band_until(
+            &mut vol,
+            &frame,
+            &tables,
+            &mut img,
+            &mut rows,
+            None,
+            2..nk,
+            &mut three,
+        );
+        assert_eq!(r.unwrap(), 5);
+        let go = &mut || true;
+        for bad in [(3, 2), (0, nk + 1)].map(|(a, b)| a..b) {
+            let r = composite_band_until(
+                &mut vol, &frame, &tables, &mut img, &mut rows, None, bad, go,
+            );
+            assert!(matches!(r, Err(Error::BadParameter { .. })));
+        }
+        assert!(img.split_off(ih + 1).is_err());
+    }
+
     #[test]
     fn small_buffers_are_errors_not_panics() {
         let grid = Grid::new([4, 4, 4], [1.0; 3]).unwrap();
@@ -799,20 +1006,8 @@ mod tests {
         let c = rle::encode(&dense, &grid, Axis::X, 0, &mut r3, &mut v3, &mut s3).unwrap();
         let mut vol = RleVolume::new(grid, [c, b, a]).unwrap();
         let color = [[ONE as u16; 3]; 256];
-        let settings = Settings {
-            mode: Mode::Composite,
-            color: &color,
-            lighting: None,
-            ert_threshold: 0.95,
-            depth_cue: None,
-            shadows: false,
-        };
-        let cam = Camera {
-            rotate_x: 10.0,
-            rotate_y: 20.0,
-            width: 16,
-            height: 16,
-        };
+        let settings = unlit(&color);
+        let cam = small_camera();
         let mut ws_full = StaticWorkspace::<200, 12, 16>::new();
         let mut frame = [[0u8; 4]; 256];
         let mut sink = FrameBuffer {

@@ -121,21 +121,22 @@ pub fn composite_band_until<S: SliceSource>(
     img: &mut Intermediate<'_>,
     rows: &mut [Rgba],
     shadow: Option<(&mut [u16], &mut [u16])>,
+    slices: std::ops::Range<usize>,
     keep_going: &mut dyn FnMut() -> bool,
-) -> Result<bool, Error> {
+) -> Result<usize, Error> {
     match isa.effective() {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `effective` returns only levels whose features this CPU has.
         Isa::X86V4 => unsafe {
             render::composite_band_until_x86_v4(
-                source, frame, tables, img, rows, shadow, keep_going,
+                source, frame, tables, img, rows, shadow, slices, keep_going,
             )
         },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as above.
         Isa::X86V3 => unsafe {
             render::composite_band_until_x86_v3(
-                source, frame, tables, img, rows, shadow, keep_going,
+                source, frame, tables, img, rows, shadow, slices, keep_going,
             )
         },
         #[cfg(target_arch = "x86_64")]
@@ -143,11 +144,13 @@ pub fn composite_band_until<S: SliceSource>(
         // baseline: every CPU this code runs on has them.
         Isa::Baseline => unsafe {
             render::composite_band_until_x86_64(
-                source, frame, tables, img, rows, shadow, keep_going,
+                source, frame, tables, img, rows, shadow, slices, keep_going,
             )
         },
         #[cfg(not(target_arch = "x86_64"))]
-        _ => render::composite_band_until(source, frame, tables, img, rows, shadow, keep_going),
+        _ => render::composite_band_until(
+            source, frame, tables, img, rows, shadow, slices, keep_going,
+        ),
     }
 }
 
@@ -289,12 +292,13 @@ mod tests {
                 let mut rows = vec![[0u16; 4]; 64];
                 let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
                 let go = &mut || true;
+                let all = 0..frame.view.dims[2];
                 match isa {
                     Some(isa) => composite_band_until(
-                        isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
+                        isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, all, go,
                     ),
                     None => render::composite_band_until(
-                        &mut vol, &frame, &tables, &mut img, &mut rows, None, go,
+                        &mut vol, &frame, &tables, &mut img, &mut rows, None, all, go,
                     ),
                 }
                 .unwrap();

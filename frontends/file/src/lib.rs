@@ -9,6 +9,7 @@ pub mod info;
 pub mod isa;
 pub mod presets;
 pub mod scene;
+mod steal;
 pub mod tffile;
 pub mod tfspec;
 pub mod volume;

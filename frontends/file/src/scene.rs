@@ -20,6 +20,7 @@ use shearwarp_core::{io, postclass, swv, warp};
 
 use crate::bigbuf;
 use crate::isa::{self, Isa};
+use crate::steal::{Piece, Retire, Sharing};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -390,48 +391,9 @@ pub struct Look {
     pub shadows: bool,
 }
 
-/// The part of an `iw×ih` intermediate image not yet handed to one of `threads`
-/// threads: its first scanline, pixels, opaque-pixel bitmap and extents.
-struct Unclaimed<'a> {
-    iw: usize,
-    ih: usize,
-    threads: usize,
-    row0: usize,
-    pixels: &'a mut [Rgba],
-    opaque: &'a mut [opaque::Word],
-    extents: &'a mut [[u32; 2]],
-}
-
-impl<'a> Unclaimed<'a> {
-    /// Claims the next band: its first scanline, length, pixels, bitmap and extents.
-    /// Bands shrink as the image runs out (guided self-scheduling): a share of what is
-    /// left for each thread, at least [`Renderer::BAND_ROWS`]. Each band re-shades, in
-    /// every slice, the voxel row its first scanline shares with the band above (the
-    /// head at 256², 9–13 bands: 5.6 % more instructions than one band in callgrind), so
-    /// early bands are long; short late bands keep the threads finishing together.
-    fn claim(&mut self) -> Option<Band<'a>> {
-        let left = self.ih.saturating_sub(self.row0);
-        if left == 0 {
-            return None;
-        }
-        let rows = (left / (2 * self.threads))
-            .max(Renderer::BAND_ROWS)
-            .min(left);
-        let stride = opaque::words(self.iw);
-        let (p, rest) = std::mem::take(&mut self.pixels).split_at_mut(rows * self.iw);
-        self.pixels = rest;
-        let (o, rest) = std::mem::take(&mut self.opaque).split_at_mut(rows * stride);
-        self.opaque = rest;
-        let (e, rest) = std::mem::take(&mut self.extents).split_at_mut(rows);
-        self.extents = rest;
-        let row0 = self.row0;
-        self.row0 += rows;
-        Some((row0, rows, p, o, e))
-    }
-}
-
-/// A claimed band: first scanline, scanlines, pixels, opaque-pixel bitmap, extents.
-type Band<'a> = (
+/// A thread's starting band: first scanline, scanlines, pixels, opaque-pixel bitmap,
+/// extents.
+type Start<'a> = (
     usize,
     usize,
     &'a mut [Rgba],
@@ -441,8 +403,8 @@ type Band<'a> = (
 
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
 ///
-/// The threads of a frame finish within a fraction of a millisecond of each other (the
-/// bands are claimed as they finish), but a thread that blocks waits to be woken, and a
+/// The threads of a frame finish within a fraction of a millisecond of each other (a
+/// thread that runs out of work takes half of another's band), but a thread that blocks waits to be woken, and a
 /// pool thread that went to sleep after the compositing is slow to take the warp's
 /// first job. Measured inside the renderer (brainsmall, two threads, 36 frames at 256²,
 /// medians): the warp's worker started 0.05–0.19 ms after the compositing was joined
@@ -508,10 +470,11 @@ fn on_threads<T: Send>(
 /// Heap-allocated workspace sized for one volume, reused across frames, rendering with
 /// a configurable number of threads.
 ///
-/// With more than one thread the intermediate image is cut into bands of scanlines that
-/// threads claim as they finish, long ones first and short ones last (dynamic
-/// assignment keeps the load balanced when the object fills only part of the image);
-/// each thread composites every slice into its band. The output is bit-identical
+/// With more than one thread the intermediate image is cut into one band of scanlines
+/// per thread, and each thread composites every slice into its band; a thread that
+/// finishes takes over the lower half of the band with the most work left, from the
+/// slice its thread has reached (the `steal` module: the load stays balanced when the
+/// object fills only part of the image, with few bands). The output is bit-identical
 /// to the single-threaded path because every intermediate pixel is computed by the same
 /// code from the same inputs.
 pub struct Renderer {
@@ -524,7 +487,7 @@ pub struct Renderer {
     /// 0.3 ms on the hires brain (256², one thread), a tenth to a half of the warp.
     extents: Vec<[u32; 2]>,
     /// The intermediate image size `extents` hold, `None` when the last frame was
-    /// abandoned (its unclaimed bands were never scanned).
+    /// abandoned (its bands were not all finished, and were not scanned).
     extents_of: Option<[usize; 2]>,
     rows: Vec<Vec<Rgba>>,
     shade: Box<ShadeTable>,
@@ -543,7 +506,7 @@ pub struct Renderer {
 }
 
 impl Renderer {
-    /// Fewest scanlines per work unit in threaded rendering.
+    /// Fewest scanlines a band is split into in threaded rendering.
     pub const BAND_ROWS: usize = 8;
 
     /// Allocates for any view of `grid` (buffers grow if a frame needs more), one thread.
@@ -647,9 +610,10 @@ impl Renderer {
     }
 
     /// Composites every slice of `source` into the held intermediate image and returns
-    /// the frame (its `view` says how to warp it). Bands of scanlines, long ones first
-    /// and at least [`Renderer::BAND_ROWS`], are claimed by the threads as they finish;
-    /// with shadows the whole image is one band on the calling thread.
+    /// the frame (its `view` says how to warp it). Each thread starts with an equal band
+    /// of scanlines and takes over half of another's band (at least
+    /// [`Renderer::BAND_ROWS`] scanlines) when it finishes; with shadows the whole image
+    /// is one band on the calling thread.
     pub fn composite<S: SliceSource + Clone + Send>(
         &mut self,
         source: &mut S,
@@ -741,7 +705,8 @@ impl Renderer {
                 let mut img =
                     Intermediate::new(iw, ih, &mut self.pixels[..n], &mut self.links[..n])?;
                 let rows = &mut self.rows[0];
-                let done = isa::composite_band_until(
+                let nk = frame.view.dims[2];
+                let reached = isa::composite_band_until(
                     self.isa,
                     source,
                     &frame,
@@ -749,8 +714,10 @@ impl Renderer {
                     &mut img,
                     rows,
                     shadow,
+                    0..nk,
                     &mut || keep_going(),
                 )?;
+                let done = reached == nk;
                 if done {
                     warp::extents(img.pixels(), iw, &mut self.extents[..ih])?;
                     self.extents_of = Some([iw, ih]);
@@ -759,40 +726,90 @@ impl Renderer {
             }
         };
         const PANICKED: &str = "a compositing thread panicked";
-        let queue = Mutex::new(Unclaimed {
-            iw,
-            ih,
-            threads: self.rows.len(),
-            row0: 0,
-            pixels: &mut self.pixels[..n],
-            opaque: &mut self.links[..opaque::words(iw) * ih],
-            extents: &mut self.extents[..ih],
-        });
+        // Equal bands to start with, one per thread; they are split as threads finish.
+        let threads = self.rows.len();
+        let stride = opaque::words(iw);
+        let mut starts = Vec::with_capacity(threads);
+        let (mut px, mut op, mut ex) = (
+            &mut self.pixels[..n],
+            &mut self.links[..stride * ih],
+            &mut self.extents[..ih],
+        );
+        for t in 0..threads {
+            let (row0, rows) = (ih * t / threads, ih * (t + 1) / threads - ih * t / threads);
+            let (p, rest) = std::mem::take(&mut px).split_at_mut(rows * iw);
+            px = rest;
+            let (o, rest) = std::mem::take(&mut op).split_at_mut(rows * stride);
+            op = rest;
+            let (e, rest) = std::mem::take(&mut ex).split_at_mut(rows);
+            ex = rest;
+            starts.push((row0, rows, p, o, e));
+        }
+        let nk = frame.view.dims[2];
+        let sharing = Sharing::new(
+            nk,
+            Renderer::BAND_ROWS,
+            starts.iter().map(|s| s.1).collect(),
+        );
         let stopped = AtomicBool::new(false);
         let isa = self.isa;
-        // One worker per row buffer, each with its own handle on the source.
-        let work = |(rows, mut src): (&mut Vec<Rgba>, S)| -> Result<(), Error> {
-            loop {
-                let job = queue
-                    .lock()
-                    .map_err(|_| Error::Source { reason: PANICKED })?
-                    .claim();
-                let Some((row0, here, p, l, e)) = job else {
-                    return Ok(());
+        // One worker per row buffer, each with its own handle on the source and its
+        // starting band.
+        let work =
+            |(t, (rows, mut src), start): (usize, (&mut Vec<Rgba>, S), _)| -> Result<(), Error> {
+                let (row0, here, p, l, e): Start<'_> = start;
+                let _retire = Retire {
+                    sharing: &sharing,
+                    t,
                 };
-                let mut img = Intermediate::band(iw, ih, row0, here, p, l)?;
-                let go = &mut || keep_going();
-                if !isa::composite_band_until(
-                    isa, &mut src, &frame, &tables, &mut img, rows, None, go,
-                )? {
-                    // The frame is abandoned and holds no extents: none to scan.
-                    stopped.store(true, Ordering::Relaxed);
-                    return Ok(());
+                let img = Intermediate::band(iw, ih, row0, here, p, l)?;
+                let mut piece = Some(Piece {
+                    img,
+                    extents: e,
+                    next: 0,
+                });
+                while let Some(mut p) = piece {
+                    while p.next < nk {
+                        let mut abandon = false;
+                        let mut at = p.next;
+                        let go = &mut || {
+                            if sharing.wanted(t, at) {
+                                return false;
+                            }
+                            at += 1;
+                            abandon = !keep_going();
+                            !abandon
+                        };
+                        p.next = isa::composite_band_until(
+                            isa,
+                            &mut src,
+                            &frame,
+                            &tables,
+                            &mut p.img,
+                            rows,
+                            None,
+                            p.next..nk,
+                            go,
+                        )?;
+                        if abandon {
+                            // The frame holds no extents: none to scan.
+                            stopped.store(true, Ordering::Relaxed);
+                            return Ok(());
+                        }
+                        if p.next < nk {
+                            sharing.serve(t, &mut p)?;
+                        }
+                    }
+                    warp::extents(p.img.pixels(), iw, p.extents)?;
+                    sharing.retire(t);
+                    piece = sharing.steal(t)?;
                 }
-                warp::extents(img.pixels(), iw, e)?;
-            }
-        };
-        let each = self.rows.iter_mut().map(|rows| (rows, source.clone()));
+                Ok(())
+            };
+        let each = (0..threads)
+            .zip(self.rows.iter_mut().map(|rows| (rows, source.clone())))
+            .zip(starts)
+            .map(|((t, r), s)| (t, r, s));
         on_threads(pool, each, work, PANICKED)?;
         let done = !stopped.load(Ordering::Relaxed);
         self.extents_of = done.then_some([iw, ih]);
