@@ -63,6 +63,13 @@ pub fn decode(code: u16) -> Option<[f64; 3]> {
     Some([px / len, py / len, pz / len])
 }
 
+/// The code of the direction opposite `code`'s: `DIRECTIONS − 1 − code` (the other
+/// hemisphere, both grid indices mirrored). [`UNIT`] holds exactly the negated vector
+/// there, which lets a shading table, two-sided, fill one half and mirror it.
+pub const fn antipode(code: u16) -> u16 {
+    (DIRECTIONS - 1 - code as usize) as u16
+}
+
 /// Unit vector of every direction code in Q14 (`i16`, 16384 = 1.0), computed at compile
 /// time with integer arithmetic so that shading tables need no floating point per code.
 pub static UNIT: [[i16; 3]; DIRECTIONS] = unit_table();
@@ -115,6 +122,23 @@ mod tests {
     fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
         let d = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]).clamp(-1.0, 1.0);
         libm::acos(d).to_degrees()
+    }
+
+    /// The shading table's mirrored fill relies on this, bit for bit.
+    #[test]
+    fn opposite_codes_hold_exactly_negated_units() {
+        for code in 0..DIRECTIONS as u16 {
+            let (n, m) = (UNIT[code as usize], UNIT[antipode(code) as usize]);
+            assert_eq!(m, n.map(|c| -c), "code {code}");
+            assert_eq!(
+                encode(
+                    -1000 * n[0] as i64,
+                    -1000 * n[1] as i64,
+                    -1000 * n[2] as i64
+                ),
+                antipode(code)
+            );
+        }
     }
 
     #[test]
