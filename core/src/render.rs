@@ -341,8 +341,8 @@ band_compositor! {
     /// pixels are a usable, incomplete image), and a thread that runs out of work takes
     /// over the lower scanlines of another thread's band between two slices
     /// ([`Intermediate::split_off`]). Depth cueing is applied after the last slice
-    /// (position `view.dims[2] - 1`) is composited. Shadows sweep their buffer with the slices, so with
-    /// shadows `slices` must be the whole frame.
+    /// (position `view.dims[2] - 1`) is composited. Shadows sweep their buffer with the
+    /// slices, so with shadows `slices` must be the whole frame.
     composite_band_until,
     &composite::Portable
 }
@@ -520,7 +520,7 @@ fn band<S: SliceSource>(
         }
     }
     // Once per scanline: when the last slice has been composited into it.
-    if slices.start < nk && slices.end == nk {
+    if !slices.is_empty() && slices.end == nk {
         if let Some(d) = &frame.depth {
             img.apply_depth_cue(d);
         }
@@ -711,17 +711,23 @@ mod tests {
         store
     }
 
-    fn axes_of<'a>(
-        grid: &Grid,
-        store: &'a [(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)],
-    ) -> Vec<RleAxis<'a>> {
-        Axis::ALL
-            .iter()
-            .map(|&a| {
-                let (r, v, s) = &store[a as usize];
-                RleAxis::new(grid.dims, a, r, v, s).unwrap()
-            })
-            .collect()
+    /// The volume `store` ([`encode_all`]) encodes on `grid`.
+    fn rle_volume(grid: Grid, store: &[(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)]) -> RleVolume<'_> {
+        let axes = Axis::ALL.map(|a| {
+            let (r, v, s) = &store[a as usize];
+            RleAxis::new(grid.dims, a, r, v, s).unwrap()
+        });
+        RleVolume::new(grid, axes).unwrap()
+    }
+
+    /// A 48×40 view turned `rx`, `ry` degrees.
+    fn view48(rx: f64, ry: f64) -> Camera {
+        Camera {
+            rotate_x: rx,
+            rotate_y: ry,
+            width: 48,
+            height: 40,
+        }
     }
 
     /// Unshaded compositing with `color`, early ray termination at 0.95.
@@ -759,8 +765,7 @@ mod tests {
         let grid = Grid::new([23, 17, 29], [1.0, 1.3, 0.8]).unwrap();
         let dense = classified(&grid);
         let store = encode_all(&dense, &grid);
-        let axes = axes_of(&grid, &store);
-        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let mut vol = rle_volume(grid, &store);
         let color = ramp_colours();
         let lighting = Lighting::default();
         let mut shade = ShadeTable::UNSHADED;
@@ -775,12 +780,7 @@ mod tests {
             (170.0, -80.0),
         ] {
             for (ert, lit) in [(0.95, true), (1.0, false), (0.5, true)] {
-                let cam = Camera {
-                    rotate_x: rx,
-                    rotate_y: ry,
-                    width: 48,
-                    height: 40,
-                };
+                let cam = view48(rx, ry);
                 let settings = Settings {
                     mode: Mode::Composite,
                     color: &color,
@@ -860,20 +860,14 @@ mod tests {
         let grid = Grid::new([23, 17, 29], [1.0, 1.3, 0.8]).unwrap();
         let dense = classified(&grid);
         let store = encode_all(&dense, &grid);
-        let axes = axes_of(&grid, &store);
-        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let mut vol = rle_volume(grid, &store);
         let color = ramp_colours();
         let lighting = Lighting::default();
         let mut shade = ShadeTable::UNSHADED;
         let mut rows = vec![[0u16; 4]; 64];
         let mut splits = 0;
         for (rx, ry) in [(20.0, 35.0), (-60.0, 10.0), (10.0, 100.0)] {
-            let cam = Camera {
-                rotate_x: rx,
-                rotate_y: ry,
-                width: 48,
-                height: 40,
-            };
+            let cam = view48(rx, ry);
             let settings = Settings {
                 mode: Mode::Composite,
                 color: &color,
@@ -944,8 +938,7 @@ mod tests {
         let grid = Grid::new([9, 7, 11], [1.0; 3]).unwrap();
         let dense = classified(&grid);
         let store = encode_all(&dense, &grid);
-        let axes = axes_of(&grid, &store);
-        let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let mut vol = rle_volume(grid, &store);
         let color = ramp_colours();
         let settings = unlit(&color);
         let cam = small_camera();

@@ -404,9 +404,9 @@ type Start<'a> = (
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
 ///
 /// The threads of a frame finish within a fraction of a millisecond of each other (a
-/// thread that runs out of work takes half of another's band), but a thread that blocks waits to be woken, and a
-/// pool thread that went to sleep after the compositing is slow to take the warp's
-/// first job. Measured inside the renderer (brainsmall, two threads, 36 frames at 256²,
+/// thread that runs out of work takes half of another's band), but a thread that blocks
+/// waits to be woken, and a pool thread that went to sleep after the compositing is slow
+/// to take the warp's first job. Measured inside the renderer (brainsmall, two threads, 36 frames at 256²,
 /// medians): the warp's worker started 0.05–0.19 ms after the compositing was joined
 /// when the threads slept, 0.004 ms when they spin, out of a frame of about 1 ms. The
 /// limit bounds the waste when another process holds the other core.
