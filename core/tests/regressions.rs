@@ -49,7 +49,7 @@ fn facing_entry(ka: f64, kd: f64, ks: f64) -> ([u16; 3], [u16; 3]) {
     let mut t = Box::new(ShadeTable::UNSHADED);
     t.fill(&l, &IDENTITY).unwrap();
     let code = normal::encode(0, 0, 1 << 20) as usize;
-    let e = t.entries[code];
+    let e = t.entries()[code];
     let rgb = |x: [u16; 4]| [x[0], x[1], x[2]];
     (rgb(e.diffuse), rgb(e.specular))
 }

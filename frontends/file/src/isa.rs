@@ -13,6 +13,7 @@
 
 use shearwarp_core::composite::{Intermediate, Rgba, SliceTables};
 use shearwarp_core::render::{self, Frame};
+use shearwarp_core::shade::{Lighting, ShadeTable};
 use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::Factorization;
 use shearwarp_core::warp::{self, PixelSink};
@@ -175,6 +176,23 @@ pub fn warp_rows(
     }
 }
 
+/// [`ShadeTable::fill`] in the build for `isa` (the x86-64-v3 one for v3 and v4), or
+/// the portable one when this CPU lacks it. Every build fills the same entries.
+pub fn fill_shade(
+    isa: Isa,
+    shade: &mut ShadeTable,
+    lighting: &Lighting,
+    rot: &[[f64; 3]; 3],
+) -> Result<(), Error> {
+    match isa.effective() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `effective` returns only levels whose features this CPU has, and v4
+        // includes v3's.
+        Isa::X86V4 | Isa::X86V3 => unsafe { shade.fill_x86_v3(lighting, rot) },
+        _ => shade.fill(lighting, rot),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -244,7 +262,7 @@ mod tests {
         let color = [[0u16; 3]; 256];
         let mut shade = Box::new(ShadeTable::UNSHADED);
         let lane = |x: u64| -> [u16; 4] { core::array::from_fn(|c| (x >> (16 * c)) as u16) };
-        for e in shade.entries.iter_mut() {
+        for e in shade.entries_mut().iter_mut() {
             *e = ShadeEntry {
                 diffuse: lane(rnd()),
                 specular: lane(rnd()),
@@ -321,6 +339,54 @@ mod tests {
     /// by the image's extents: random intermediate images (channels past one included,
     /// which the 8-bit conversion clamps; half of them a disc in background) through
     /// random views and output sizes, every output pixel compared.
+    /// Every build fills the shading table alike: random lights (one white, several
+    /// coloured, extreme coefficients) through random rotations, every entry compared.
+    /// A table filled by the wider build is then refilled by the portable one for the
+    /// same lights, which must find it filled and leave it as it is.
+    #[test]
+    fn every_build_fills_the_shading_table_alike() {
+        use shearwarp_core::shade::Light;
+        let mut rnd = xorshift(0x2545_f491_4f6c_dd1d);
+        let mut unit = || (rnd() % 2001) as f64 / 1000.0 - 1.0;
+        for case in 0..40 {
+            let mut l = Lighting::default();
+            if case % 2 == 1 {
+                l.ka = (unit() + 1.0) / 2.0;
+                l.kd = (unit() + 1.0) * 8.0;
+                l.ks = (unit() + 1.0) * 8.0;
+                l.shininess = (unit() + 1.0) * 60.0;
+                l.lights.clear();
+                for _ in 0..1 + case % 4 {
+                    let light = Light {
+                        direction: [unit(), unit(), unit() + 0.01],
+                        color: [0.5 + unit() / 2.0, 0.5 + unit() / 2.0, 0.5 + unit() / 2.0],
+                    };
+                    l.lights.push(light).unwrap();
+                }
+            }
+            let cam = Camera {
+                rotate_x: unit() * 180.0,
+                rotate_y: unit() * 180.0,
+                width: 8,
+                height: 8,
+            };
+            let grid = Grid::new([9, 9, 9], [1.0; 3]).unwrap();
+            let rot = view::Factorization::new(&grid, &cam).unwrap().rotation;
+            let mut base = Box::new(ShadeTable::UNSHADED);
+            base.fill(&l, &rot).unwrap();
+            for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
+                let mut t = Box::new(ShadeTable::UNSHADED);
+                fill_shade(isa, &mut t, &l, &rot).unwrap();
+                assert!(
+                    t.entries() == base.entries(),
+                    "case {case}: {isa:?} differs"
+                );
+                t.fill(&l, &rot).unwrap();
+                assert!(t.entries() == base.entries(), "case {case}: refilled");
+            }
+        }
+    }
+
     #[test]
     fn the_wider_warp_is_bit_identical_to_the_portable_one() {
         use shearwarp_core::warp::FrameBuffer;

@@ -658,17 +658,17 @@ impl Renderer {
         };
         let grid = source.grid();
         let shade0 = look.shadows.then_some(&mut *self.shade0);
-        let frame = match self.fov {
-            Some(fov) => Frame::perspective(&grid, camera, fov, &settings, &mut self.shade)?,
-            None => Frame::supersampled(
-                &grid,
-                camera,
-                &settings,
-                &mut self.shade,
-                shade0,
-                self.supersample,
-            )?,
+        let view = match self.fov {
+            Some(fov) => Factorization::perspective(&grid, camera, fov)?,
+            None => Factorization::new(&grid, camera)?.with_supersampling(self.supersample)?,
         };
+        // The shading table filled by this CPU's widest build; the frame's setup finds
+        // it filled for its lights. With shadows the setup fills it for the other
+        // lights, and the first light's table apart.
+        if let (Some(l), false) = (&look.lighting, look.shadows) {
+            isa::fill_shade(self.isa, &mut self.shade, l, &view.rotation)?;
+        }
+        let frame = Frame::with_view(&grid, view, &settings, &mut self.shade, shade0)?;
         let shade0 = look.shadows.then_some(&*self.shade0);
         let tables = frame.tables(&self.shade, shade0);
         let [iw, ih] = frame.view.intermediate;

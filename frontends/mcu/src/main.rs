@@ -82,13 +82,19 @@ fn run() -> Result<(), &'static str> {
     while cortex_m::peripheral::SYST::get_current() == 0 {}
     // Per-frame setup alone (factorization, shading and opacity tables), for the report,
     // twice: the first also tabulates the specular power, which the shading table keeps
-    // for later frames with the same material (as the frame below).
+    // for later frames with the same material (as the frame below). Each for a view
+    // turned from the frame's, as in an animation: a table already filled for a view's
+    // lights is not filled again, which would leave the fill out of both figures.
     let mut setup = [0u64; 2];
-    for s in &mut setup {
+    for (i, s) in setup.iter_mut().enumerate() {
+        let turned = Camera {
+            rotate_y: CAMERA.rotate_y + 10.0 * (i + 1) as f64,
+            ..CAMERA
+        };
         let s0 = ticks(&cp.SYST);
         let ws = work.workspace();
         let grid = shearwarp_core::source::SliceSource::grid(source);
-        shearwarp_core::render::Frame::new(&grid, &CAMERA, &settings, ws.shade, None)
+        shearwarp_core::render::Frame::new(&grid, &turned, &settings, ws.shade, None)
             .map_err(|_| "frame setup failed")?;
         *s = ticks(&cp.SYST) - s0;
     }
