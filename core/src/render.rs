@@ -366,7 +366,7 @@ band_compositor! {
     &composite::With(
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply,
-        composite::over_run
+        composite::over_run_unranked
     )
 }
 
