@@ -412,17 +412,30 @@ impl<'a> Needed<'a> {
         }
     }
 
-    /// True if no open pixel reads any visible voxel of the `ni`-voxel scanline `runs`.
-    fn hides(&self, runs: &[u8], ni: usize) -> bool {
+    /// What open pixels read of the visible voxels of the `ni`-voxel scanline `runs`.
+    fn reach(&self, runs: &[u8], ni: usize) -> Reach {
         let Some((first, last)) = visible_extent(runs, ni) else {
-            return true;
+            return Reach::Nothing;
         };
         // Voxels first..last feed pixels first + shift ..= last + shift.
         let (a, b) = (first as i64 + self.shift, last as i64 + self.shift + 1);
-        self.lines
-            .into_iter()
-            .flatten()
+        let mut lines = self.lines.into_iter().flatten();
+        if lines
+            .clone()
             .all(|l| opaque::all_closed(l, self.width, a, b))
+        {
+            Reach::Nothing
+        } else if lines.all(|l| opaque::none_closed(l, self.width, a, b)) {
+            Reach::Everything
+        } else {
+            Reach::Some
+        }
+    }
+
+    /// True if no open pixel reads any visible voxel of the `ni`-voxel scanline `runs`.
+    #[cfg(test)]
+    fn hides(&self, runs: &[u8], ni: usize) -> bool {
+        self.reach(runs, ni) == Reach::Nothing
     }
 
     /// Bit `t` set if voxel `x + t` is read by an open pixel: it is not when both of its
@@ -440,6 +453,19 @@ impl<'a> Needed<'a> {
         let right = (c >> 1) | (next as u64) << 63;
         !(c & right)
     }
+}
+
+/// What the open pixels of a voxel row's reading scanlines read of its visible voxels
+/// ([`Needed::reach`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Reach {
+    /// None of them: the row is neither streamed into the cache nor shaded.
+    Nothing,
+    /// All of them, as far as the pixels they feed go: no pixel there is opaque, so the
+    /// row is shaded without asking which voxels are needed.
+    Everything,
+    /// Some of them.
+    Some,
 }
 
 /// The voxels `[first, last)` from a scanline's first to its last visible voxel (`ni`
@@ -900,10 +926,13 @@ pub(crate) fn composite_slice_in(
         let need = skip_opaque_voxels.then_some(&need);
         top.fill(first.0, first.1, tables, scale, jt_lo, shadow, need, kern);
     }
-    // Rows found hidden two rows ahead, by row index mod 4: a row whose every voxel
-    // only closed pixels read is neither streamed into the cache nor walked. Pixels only
-    // ever close, so a row hidden then is still hidden when its turn comes.
-    let mut hidden = [false; 4];
+    // What open pixels read of the rows two rows ahead, by row index mod 4. A row whose
+    // every voxel only closed pixels read is neither streamed into the cache nor walked:
+    // pixels only ever close, so a row hidden then is still hidden when its turn comes.
+    // A row whose reach held no closed pixel then is shaded whole, without the
+    // per-voxel test of which voxels open pixels read: voxels that only pixels closed
+    // since then read are shaded for nothing, and no pixel reads them.
+    let mut reach = [Reach::Some; 4];
     // The scanlines of rows jt + 1 ..= jt + 3 by row index mod 4, each looked up once.
     let mut scans = [empty; 4];
     for j in jt_lo + 1..jt_lo + 3 {
@@ -913,18 +942,25 @@ pub(crate) fn composite_slice_in(
         let next = scans[(jt + 1).rem_euclid(4) as usize];
         let ahead = row_of(jt + 3);
         scans[(jt + 3).rem_euclid(4) as usize] = ahead;
-        let hide = skip_opaque_voxels
-            && Needed::lines(img, jt + 3 + ov.n as i64, ou.n as i64).hides(ahead.0, ni);
-        hidden[(jt + 3).rem_euclid(4) as usize] = hide;
-        if !hide {
+        let r = if skip_opaque_voxels {
+            Needed::lines(img, jt + 3 + ov.n as i64, ou.n as i64).reach(ahead.0, ni)
+        } else {
+            Reach::Everything
+        };
+        reach[(jt + 3).rem_euclid(4) as usize] = r;
+        if r != Reach::Nothing {
             kern.warm(ahead.1);
         }
-        if hidden[(jt + 1).rem_euclid(4) as usize] {
-            bot.clear();
-        } else {
-            let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
-            let need = skip_opaque_voxels.then_some(&need);
-            bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, need, kern);
+        match reach[(jt + 1).rem_euclid(4) as usize] {
+            Reach::Nothing => bot.clear(),
+            Reach::Everything => {
+                bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, None, kern);
+            }
+            Reach::Some => {
+                let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
+                let need = skip_opaque_voxels.then_some(&need);
+                bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, need, kern);
+            }
         }
         let v = jt + ov.n as i64 + 1;
         if v >= band_lo && v < band_hi {
@@ -1344,6 +1380,49 @@ mod tests {
         // Scanline 3 lies outside the band: only scanline 4 reads, and it is closed.
         assert!(Needed::lines(&img, 3, 7).hides(&runs, 120));
         assert!(Needed::lines(&img, 3, 7).hides(&[120, 0], 120));
+    }
+
+    #[test]
+    fn a_row_is_read_whole_exactly_when_no_pixel_it_reaches_is_closed() {
+        // As above: voxels 10..14 and 90..93 visible, shift 7, so they reach pixels
+        // 17..=100 of scanlines 4 and 5.
+        let runs = [10u8, 4, 76, 3, 27, 0];
+        let mut pixels = [[0u16; 4]; 2 * 140];
+        let mut links = [0; 2 * 140];
+        let mut img = Intermediate::band(140, 10, 4, 2, &mut pixels, &mut links).unwrap();
+        let close = |img: &mut Intermediate<'_>, r: usize, u: usize| {
+            let (_, line) = img.scanline_mut(r);
+            opaque::mark(line, u);
+        };
+        assert_eq!(
+            Needed::lines(&img, 4, 7).reach(&runs, 120),
+            Reach::Everything
+        );
+        // Closed pixels outside the reach, in either scanline.
+        close(&mut img, 0, 16);
+        close(&mut img, 1, 101);
+        close(&mut img, 1, 139);
+        assert_eq!(
+            Needed::lines(&img, 4, 7).reach(&runs, 120),
+            Reach::Everything
+        );
+        // Pixel 100 (voxel 92's right one) in scanline 5, then pixel 17 (voxel 10's left
+        // one) in scanline 5 of a fresh band.
+        close(&mut img, 1, 100);
+        assert_eq!(Needed::lines(&img, 4, 7).reach(&runs, 120), Reach::Some);
+        let mut img = Intermediate::band(140, 10, 4, 2, &mut pixels, &mut links).unwrap();
+        close(&mut img, 1, 17);
+        assert_eq!(Needed::lines(&img, 4, 7).reach(&runs, 120), Reach::Some);
+        // Scanline 3 lies outside the band: scanline 4, all open, alone decides.
+        assert_eq!(
+            Needed::lines(&img, 3, 7).reach(&runs, 120),
+            Reach::Everything
+        );
+        // A row without visible voxels reaches nothing.
+        assert_eq!(
+            Needed::lines(&img, 4, 7).reach(&[120, 0], 120),
+            Reach::Nothing
+        );
     }
 
     #[test]

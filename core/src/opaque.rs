@@ -57,6 +57,8 @@ pub(crate) trait BitWord: Copy + Eq {
     fn range(lo: usize, hi: usize) -> Self;
     /// `self & mask == mask`.
     fn covers(self, mask: Self) -> bool;
+    /// `self & mask == 0`.
+    fn misses(self, mask: Self) -> bool;
     /// Bit `i`.
     fn bit(self, i: usize) -> bool;
     /// Sets bit `i`.
@@ -75,6 +77,10 @@ macro_rules! word_bits {
         #[inline(always)]
         fn covers(self, mask: $t) -> bool {
             self & mask == mask
+        }
+        #[inline(always)]
+        fn misses(self, mask: $t) -> bool {
+            self & mask == 0
         }
         #[inline(always)]
         fn bit(self, i: usize) -> bool {
@@ -183,10 +189,31 @@ pub(crate) fn closed65<W: BitWord>(line: &[W], width: usize, start: i64) -> (u64
 /// 65-pixel window per 64 voxels.
 #[inline(always)]
 pub(crate) fn all_closed<W: BitWord>(line: &[W], width: usize, a: i64, b: i64) -> bool {
+    test_words(line, width, a, b, true, W::covers)
+}
+
+/// True if no pixel of `a..b` that lies in `0..width` is opaque, a word at a time like
+/// [`all_closed`] (a range past the stored words is not known to be open: false).
+#[inline(always)]
+pub(crate) fn none_closed<W: BitWord>(line: &[W], width: usize, a: i64, b: i64) -> bool {
+    test_words(line, width, a, b, true, W::misses)
+}
+
+/// `test(word, mask)` for every word of the bitmap that pixels `a..b` (clamped to
+/// `0..width`) touch, with the mask of those pixels in it; `empty` for an empty range.
+#[inline(always)]
+fn test_words<W: BitWord>(
+    line: &[W],
+    width: usize,
+    a: i64,
+    b: i64,
+    empty: bool,
+    test: impl Fn(W, W) -> bool,
+) -> bool {
     let a = a.clamp(0, width as i64) as usize;
     let b = b.clamp(0, width as i64) as usize;
     if a >= b {
-        return true;
+        return empty;
     }
     let (wa, wb) = (a / W::BITS, (b - 1) / W::BITS);
     let Some(words) = line.get(wa..=wb) else {
@@ -194,13 +221,13 @@ pub(crate) fn all_closed<W: BitWord>(line: &[W], width: usize, a: i64, b: i64) -
     };
     let (ha, tb) = (a % W::BITS, (b - 1) % W::BITS);
     match words {
-        [w] => w.covers(W::range(ha, tb)),
+        [w] => test(*w, W::range(ha, tb)),
         [first, mid @ .., last] => {
-            first.covers(W::range(ha, W::BITS - 1))
-                && last.covers(W::range(0, tb))
-                && mid.iter().all(|&w| w == W::ALL)
+            test(*first, W::range(ha, W::BITS - 1))
+                && test(*last, W::range(0, tb))
+                && mid.iter().all(|&w| test(w, W::ALL))
         }
-        [] => true,
+        [] => empty,
     }
 }
 
@@ -313,6 +340,41 @@ mod tests {
             let open = u >= 0 && (u as usize) < width && !opq.contains(&(u as usize));
             assert_eq!(next, !open, "start {start}: pixel {u}");
         }
+    }
+
+    both_widths!(
+        none_closed_matches_the_per_pixel_definition,
+        none_closed_case
+    );
+    fn none_closed_case<W: BitWord + Default>() {
+        let width = 150;
+        for opaque in [None, Some(0), Some(15), Some(16), Some(70), Some(149)] {
+            let opq: heapless::Vec<usize, 1> = opaque.into_iter().collect();
+            let l = line::<W>(width, &opq);
+            for a in -20i64..170 {
+                for b in a - 1..a + 90 {
+                    let want = !(a.max(0)..b.min(width as i64)).any(|u| opaque == Some(u as usize));
+                    assert_eq!(
+                        none_closed(&l, width, a, b),
+                        want,
+                        "opaque {opaque:?} {a}..{b}"
+                    );
+                }
+            }
+        }
+        // Pixels past the stored words are not known to be open.
+        assert!(!none_closed(
+            &[W::default()],
+            W::BITS + 24,
+            0,
+            W::BITS as i64 + 4
+        ));
+        assert!(none_closed(
+            &[W::default()],
+            W::BITS + 24,
+            0,
+            W::BITS as i64
+        ));
     }
 
     both_widths!(all_closed_matches_the_per_pixel_definition, all_closed_case);
