@@ -1269,6 +1269,7 @@ pub(crate) fn over_run_unranked(px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: 
 }
 
 /// The highest opacity of `px`.
+#[cfg(any(test, target_arch = "x86_64"))]
 #[inline(always)]
 pub(crate) fn highest(px: &[Rgba]) -> u16 {
     px.iter().fold(0, |h, p| h.max(p[3]))
