@@ -725,13 +725,12 @@ pub(crate) fn by_steps<const N: usize>(
     };
     let (top, bot) = (&top[..n + 1], &bot[..n + 1]);
     let at = |px: &[Rgba], u: usize| -> [Rgba; N] { core::array::from_fn(|k| px[u + k]) };
-    let highest = |hi: u16, out: &[Rgba; N]| out.iter().fold(hi, |h, p| h.max(p[3]));
     let last = step(at(px, end), &top[end..], &bot[end..]);
-    let mut hi = highest(0, &last);
+    let mut hi = highest(&last);
     let mut u = 0;
     while u < end {
         let out = step(at(px, u), &top[u..], &bot[u..]);
-        hi = highest(hi, &out);
+        hi = hi.max(highest(&out));
         px[u..u + N].copy_from_slice(&out);
         u += N;
     }
@@ -932,7 +931,13 @@ pub(crate) fn composite_slice_in(
     // A row whose reach held no closed pixel then is shaded whole, without the
     // per-voxel test of which voxels open pixels read: voxels that only pixels closed
     // since then read are shaded for nothing, and no pixel reads them.
-    let mut reach = [Reach::Some; 4];
+    // In MIP no pixel closes: every row is read whole.
+    let first_reach = if skip_opaque_voxels {
+        Reach::Some
+    } else {
+        Reach::Everything
+    };
+    let mut reach = [first_reach; 4];
     // The scanlines of rows jt + 1 ..= jt + 3 by row index mod 4, each looked up once.
     let mut scans = [empty; 4];
     for j in jt_lo + 1..jt_lo + 3 {
@@ -958,8 +963,16 @@ pub(crate) fn composite_slice_in(
             }
             Reach::Some => {
                 let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
-                let need = skip_opaque_voxels.then_some(&need);
-                bot.fill(next.0, next.1, tables, scale, jt + 1, shadow, need, kern);
+                bot.fill(
+                    next.0,
+                    next.1,
+                    tables,
+                    scale,
+                    jt + 1,
+                    shadow,
+                    Some(&need),
+                    kern,
+                );
             }
         }
         let v = jt + ov.n as i64 + 1;

@@ -189,31 +189,30 @@ pub(crate) fn closed65<W: BitWord>(line: &[W], width: usize, start: i64) -> (u64
 /// 65-pixel window per 64 voxels.
 #[inline(always)]
 pub(crate) fn all_closed<W: BitWord>(line: &[W], width: usize, a: i64, b: i64) -> bool {
-    test_words(line, width, a, b, true, W::covers)
+    test_words(line, width, a, b, W::covers)
 }
 
 /// True if no pixel of `a..b` that lies in `0..width` is opaque, a word at a time like
 /// [`all_closed`] (a range past the stored words is not known to be open: false).
 #[inline(always)]
 pub(crate) fn none_closed<W: BitWord>(line: &[W], width: usize, a: i64, b: i64) -> bool {
-    test_words(line, width, a, b, true, W::misses)
+    test_words(line, width, a, b, W::misses)
 }
 
 /// `test(word, mask)` for every word of the bitmap that pixels `a..b` (clamped to
-/// `0..width`) touch, with the mask of those pixels in it; `empty` for an empty range.
+/// `0..width`) touch, with the mask of those pixels in it; true for an empty range.
 #[inline(always)]
 fn test_words<W: BitWord>(
     line: &[W],
     width: usize,
     a: i64,
     b: i64,
-    empty: bool,
     test: impl Fn(W, W) -> bool,
 ) -> bool {
     let a = a.clamp(0, width as i64) as usize;
     let b = b.clamp(0, width as i64) as usize;
     if a >= b {
-        return empty;
+        return true;
     }
     let (wa, wb) = (a / W::BITS, (b - 1) / W::BITS);
     let Some(words) = line.get(wa..=wb) else {
@@ -227,7 +226,7 @@ fn test_words<W: BitWord>(
                 && test(*last, W::range(0, tb))
                 && mid.iter().all(|&w| test(w, W::ALL))
         }
-        [] => empty,
+        [] => true,
     }
 }
 

@@ -245,7 +245,6 @@ impl ShadeTable {
         if self.filled.as_ref() == Some(&key) {
             return Ok(());
         }
-        self.filled = None;
         // ks·x^shininess for x = i/1024, Q15, interpolated linearly between entries.
         let spec = self.spec.update(lighting.ks, lighting.shininess);
         let lights = &key.lights;
