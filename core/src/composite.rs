@@ -419,13 +419,15 @@ impl<'a> Needed<'a> {
         };
         // Voxels first..last feed pixels first + shift ..= last + shift.
         let (a, b) = (first as i64 + self.shift, last as i64 + self.shift + 1);
-        let mut lines = self.lines.into_iter().flatten();
-        if lines
-            .clone()
-            .all(|l| opaque::all_closed(l, self.width, a, b))
-        {
+        // Each test holds for a scanline outside the band, which reads nothing.
+        let [l0, l1] = self.lines;
+        let all =
+            |l: Option<&[opaque::Word]>| l.is_none_or(|l| opaque::all_closed(l, self.width, a, b));
+        let none =
+            |l: Option<&[opaque::Word]>| l.is_none_or(|l| opaque::none_closed(l, self.width, a, b));
+        if all(l0) && all(l1) {
             Reach::Nothing
-        } else if lines.all(|l| opaque::none_closed(l, self.width, a, b)) {
+        } else if none(l0) && none(l1) {
             Reach::Everything
         } else {
             Reach::Some
@@ -443,12 +445,15 @@ impl<'a> Needed<'a> {
     #[inline(always)]
     fn voxels(&self, x: usize) -> u64 {
         let p = x as i64 + self.shift;
-        let (mut c, mut next) = (u64::MAX, true);
-        for l in self.lines.into_iter().flatten() {
-            let (w, n) = opaque::closed65(l, self.width, p);
-            c &= w;
-            next &= n;
-        }
+        // A scanline outside the band reads nothing: all closed. Written out for the two
+        // lines rather than as a loop over the present ones (the MR head, callgrind: 3.8 %
+        // fewer instructions a frame).
+        let closed = |l: Option<&[opaque::Word]>| match l {
+            Some(l) => opaque::closed65(l, self.width, p),
+            None => (u64::MAX, true),
+        };
+        let ((c0, n0), (c1, n1)) = (closed(self.lines[0]), closed(self.lines[1]));
+        let (c, next) = (c0 & c1, n0 & n1);
         // Bit t of `right`: pixel p + t + 1.
         let right = (c >> 1) | (next as u64) << 63;
         !(c & right)
@@ -613,6 +618,9 @@ pub(crate) trait Kernels {
     /// afterwards: pixels below the early-ray-termination threshold are not looked at
     /// for the opaque mark when it is below it.
     fn over_run(&self, px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) -> u16;
+    /// Bit `i` set where pixel `px[i]` (at most 64 pixels) reached opacity `thr`
+    /// (`thr >= 1`): [`closed_bits`] or a bit-identical vector version.
+    fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64;
 }
 
 /// The portable kernels: [`touch`], [`premultiply`] and [`over_run`], which does not
@@ -634,6 +642,10 @@ impl Kernels for Portable {
     fn over_run(&self, px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) -> u16 {
         over_run_unranked(px, top, bot, w)
     }
+    #[inline(always)]
+    fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
+        closed_bits(px, thr)
+    }
 }
 
 /// Kernels given as closures: an instruction-set build writes them inside its
@@ -641,14 +653,15 @@ impl Kernels for Portable {
 /// vector intrinsics those features make safe). Only the x86-64 builds have such
 /// functions.
 #[cfg(target_arch = "x86_64")]
-pub(crate) struct With<W, P, O>(pub W, pub P, pub O);
+pub(crate) struct With<W, P, O, C>(pub W, pub P, pub O, pub C);
 
 #[cfg(target_arch = "x86_64")]
-impl<W, P, O> Kernels for With<W, P, O>
+impl<W, P, O, C> Kernels for With<W, P, O, C>
 where
     W: Fn(&[Voxel]),
     P: Fn(&[u16; 4], &ShadeEntry, u32) -> Rgba,
     O: Fn(&mut [Rgba], &[Rgba], &[Rgba], [u32; 4]) -> u16,
+    C: Fn(&[Rgba], u32) -> u64,
 {
     #[inline(always)]
     fn warm(&self, voxels: &[Voxel]) {
@@ -661,6 +674,10 @@ where
     #[inline(always)]
     fn over_run(&self, px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) -> u16 {
         (self.2)(px, top, bot, w)
+    }
+    #[inline(always)]
+    fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
+        (self.3)(px, thr)
     }
 }
 
@@ -1196,7 +1213,7 @@ fn over_span(
         // at each pixel (spheres256, callgrind: 9.7 % fewer instructions a frame).
         let thr = ert.max(1);
         if highest as u32 >= thr {
-            mark_closed(opaque, u, px, thr);
+            mark_closed(opaque, u, px, thr, kern);
         }
         u = opaque::next_open(opaque, width, e, end);
     }
@@ -1211,31 +1228,84 @@ fn over_span(
 /// by pixel.
 #[cfg(target_pointer_width = "64")]
 #[inline(always)]
-fn mark_closed(opaque: &mut [opaque::Word], u: usize, px: &[Rgba], thr: u32) {
-    mark_closed_words(opaque, u, px, thr);
+fn mark_closed(opaque: &mut [opaque::Word], u: usize, px: &[Rgba], thr: u32, k: &impl Kernels) {
+    mark_closed_words(opaque, u, px, thr, k);
 }
 
 /// [`mark_closed`] on 32-bit targets.
 #[cfg(not(target_pointer_width = "64"))]
 #[inline(always)]
-fn mark_closed(opaque: &mut [opaque::Word], u: usize, px: &[Rgba], thr: u32) {
+fn mark_closed(opaque: &mut [opaque::Word], u: usize, px: &[Rgba], thr: u32, _: &impl Kernels) {
     mark_closed_each(opaque, u, px, thr);
 }
 
 /// [`mark_closed`] 64 pixels at a time.
 #[cfg_attr(not(any(test, target_pointer_width = "64")), allow(dead_code))]
 #[inline(always)]
-fn mark_closed_words<W: opaque::BitWord>(opaque: &mut [W], u: usize, px: &[Rgba], thr: u32) {
+fn mark_closed_words<W: opaque::BitWord>(
+    opaque: &mut [W],
+    u: usize,
+    px: &[Rgba],
+    thr: u32,
+    k: &impl Kernels,
+) {
     for (c, chunk) in px.chunks(64).enumerate() {
-        let mut m = 0u64;
-        for (i, p) in chunk.iter().enumerate() {
-            m |= ((p[3] as u32 >= thr) as u64) << i;
-        }
+        let m = k.closed_bits(chunk, thr);
         if m != 0 {
             opaque::mark_bits(opaque, u + 64 * c, m);
         }
     }
 }
+
+/// Bit `i` set where `px[i]` (at most 64 pixels) reached opacity `thr`.
+#[inline(always)]
+pub(crate) fn closed_bits(px: &[Rgba], thr: u32) -> u64 {
+    let mut m = 0u64;
+    for (i, p) in px.iter().take(64).enumerate() {
+        m |= ((p[3] as u32 >= thr) as u64) << i;
+    }
+    m
+}
+
+/// [`closed_bits`] four pixels a step in AVX2: a pixel is one 64-bit lane, its opacity
+/// the lane's top 16 bits, so a shift, a 64-bit compare and a sign-bit mask give four
+/// bits. The compiler's version of the plain loop sets up vector code that short runs
+/// hardly enter: on the MR head, 19 K runs a frame of 7.6 pixels on average are looked
+/// at, and this kernel takes 1.5 % off the frame's instructions (callgrind). Runs
+/// shorter than four pixels go pixel by pixel; the last step of a longer run overlaps
+/// the one before it. A macro expanding to a closure,
+/// written inside the x86-64-v3 and v4 compositors (see [`premultiply_sse41`]).
+#[cfg(target_arch = "x86_64")]
+macro_rules! closed_bits_avx2 {
+    () => {
+        |px: &[$crate::composite::Rgba], thr: u32| -> u64 {
+            use core::arch::x86_64::*;
+            type Rgba = $crate::composite::Rgba;
+            let px = &px[..px.len().min(64)];
+            let n = px.len();
+            if n < 4 {
+                return $crate::composite::closed_bits(px, thr);
+            }
+            // Opacity above thr − 1, as signed 64-bit lanes (both are below 2^16).
+            let below = _mm256_set1_epi64x(thr as i64 - 1);
+            let four = |q: &[Rgba]| -> u64 {
+                let q: [Rgba; 4] = core::array::from_fn(|k| q[k]);
+                let alpha = _mm256_srli_epi64::<48>(bytemuck::cast(q));
+                let ge = _mm256_cmpgt_epi64(alpha, below);
+                _mm256_movemask_pd(_mm256_castsi256_pd(ge)) as u64
+            };
+            let mut m = four(&px[n - 4..]) << (n - 4);
+            let mut i = 0;
+            while i + 4 < n {
+                m |= four(&px[i..i + 4]) << i;
+                i += 4;
+            }
+            m
+        }
+    };
+}
+#[cfg(target_arch = "x86_64")]
+pub(crate) use closed_bits_avx2;
 
 /// [`mark_closed`] pixel by pixel.
 #[cfg_attr(all(not(test), target_pointer_width = "64"), allow(dead_code))]
@@ -1567,13 +1637,13 @@ mod tests {
             let mut a = [0u16; 19];
             a.iter_mut().for_each(|w| *w = rng() as u16 & rng() as u16);
             let mut b = a;
-            mark_closed_words(&mut a[..width.div_ceil(16)], u, &px, thr);
+            mark_closed_words(&mut a[..width.div_ceil(16)], u, &px, thr, &Portable);
             mark_closed_each(&mut b[..width.div_ceil(16)], u, &px, thr);
             assert_eq!(a, b, "case {case}");
             let mut a = [0u64; 5];
             a.iter_mut().for_each(|w| *w = rng() & rng());
             let mut b = a;
-            mark_closed_words(&mut a[..width.div_ceil(64)], u, &px, thr);
+            mark_closed_words(&mut a[..width.div_ceil(64)], u, &px, thr, &Portable);
             mark_closed_each(&mut b[..width.div_ceil(64)], u, &px, thr);
             assert_eq!(a, b, "case {case}");
         }
@@ -1662,6 +1732,9 @@ mod tests {
         fn over_run(&self, px: &mut [Rgba], top: &[Rgba], bot: &[Rgba], w: [u32; 4]) -> u16 {
             over_run(px, top, bot, w);
             highest(px)
+        }
+        fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
+            closed_bits(px, thr)
         }
     }
 

@@ -366,7 +366,8 @@ band_compositor! {
     &composite::With(
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply,
-        composite::over_run_unranked
+        composite::over_run_unranked,
+        composite::closed_bits
     )
 }
 
@@ -395,7 +396,8 @@ band_compositor! {
     &composite::With(
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply_sse41!(),
-        composite::over_run_simd!(avx2)
+        composite::over_run_simd!(avx2),
+        composite::closed_bits_avx2!()
     )
 }
 
@@ -415,7 +417,8 @@ band_compositor! {
     &composite::With(
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply_sse41!(),
-        composite::over_run_simd!(avx512)
+        composite::over_run_simd!(avx512),
+        composite::closed_bits_avx2!()
     )
 }
 
