@@ -150,8 +150,13 @@ impl BitWord for u64 {
 /// the end read as zero.
 #[inline(always)]
 fn opaque_window<W: BitWord>(line: &[W], start: usize) -> (u64, bool) {
-    let o = start % W::BITS;
-    let (lo, top) = W::words(line, start / W::BITS);
+    window(W::words(line, start / W::BITS), start % W::BITS)
+}
+
+/// The 64 bits from bit `o` (`o < BITS`) of the 64 bits `lo` and the word(s) `top` after
+/// them, and the bit after those ([`opaque_window`]).
+#[inline(always)]
+fn window((lo, top): (u64, u64), o: usize) -> (u64, bool) {
     let win = if o == 0 {
         lo
     } else {
@@ -186,6 +191,25 @@ pub(crate) fn closed65<W: BitWord>(line: &[W], width: usize, start: i64) -> (u64
     };
     let valid = ones(hi) & !ones(lo);
     (win | !valid, next || !(lo <= 64 && hi > 64))
+}
+
+/// [`closed65`] of two scanlines ANDed: the pixels closed in both. Inside the
+/// scanline the words of the two are ANDed before the window is shifted out of them, once
+/// (the MR head, callgrind: 3.0 % fewer instructions a frame than two windows).
+#[inline(always)]
+pub(crate) fn closed65_both<W: BitWord>(
+    l0: &[W],
+    l1: &[W],
+    width: usize,
+    start: i64,
+) -> (u64, bool) {
+    if start >= 0 && start + 65 <= width as i64 {
+        let (s, o) = (start as usize / W::BITS, start as usize % W::BITS);
+        let ((lo0, top0), (lo1, top1)) = (W::words(l0, s), W::words(l1, s));
+        return window((lo0 & lo1, top0 & top1), o);
+    }
+    let ((c0, n0), (c1, n1)) = (closed65(l0, width, start), closed65(l1, width, start));
+    (c0 & c1, n0 & n1)
 }
 
 /// True if every pixel of `a..b` that lies in `0..width` is opaque (pixels outside the
@@ -343,6 +367,28 @@ mod tests {
             let u = start + 64;
             let open = u >= 0 && (u as usize) < width && !opq.contains(&(u as usize));
             assert_eq!(next, !open, "start {start}: pixel {u}");
+        }
+    }
+
+    both_widths!(closed65_both_is_the_two_windows_anded, closed65_both_case);
+    fn closed65_both_case<W: BitWord + Default>() {
+        let width = 150;
+        let mut rng = crate::xorshift(0x0b07);
+        for _ in 0..40 {
+            let mut pick = || -> heapless::Vec<usize, 150> {
+                (0..width).filter(|_| !rng().is_multiple_of(3)).collect()
+            };
+            let (o0, o1) = (pick(), pick());
+            let (l0, l1) = (line::<W>(width, &o0), line::<W>(width, &o1));
+            for start in -80i64..200 {
+                let ((c0, n0), (c1, n1)) =
+                    (closed65(&l0, width, start), closed65(&l1, width, start));
+                assert_eq!(
+                    closed65_both(&l0, &l1, width, start),
+                    (c0 & c1, n0 & n1),
+                    "start {start}"
+                );
+            }
         }
     }
 
