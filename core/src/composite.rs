@@ -354,11 +354,12 @@ impl<'b> Row<'b> {
                     // starts inside the last window of 64 computed reads it from there.
                     let mut x = a;
                     while x < b {
-                        if x >= word.0 + 64 || x < word.0 {
+                        // Voxels x.. are bits off.. of the window, if it holds them.
+                        let mut off = x.wrapping_sub(word.0);
+                        if off >= 64 {
                             word = (x, n.voxels(x));
+                            off = 0;
                         }
-                        // Voxels x.. are bits off.. of the window.
-                        let off = x - word.0;
                         let mut m = (word.1 >> off) & opaque::ones((b - x).min(64 - off));
                         let at = x;
                         x = word.0 + 64;
