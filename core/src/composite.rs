@@ -41,8 +41,8 @@ pub enum Mode {
 /// Per-frame lookup tables the compositor reads.
 #[derive(Clone, Copy)]
 pub struct SliceTables<'a> {
-    /// Opacity-corrected Q15 opacity per stored 8-bit opacity.
-    pub opacity: &'a [u16; 256],
+    /// Opacity-corrected Q15 opacity per stored 8-bit opacity (at most `u16::MAX`).
+    pub opacity: &'a [u32; 256],
     /// Q15 RGB (and a padding lane) per quantised scalar.
     pub color: &'a ColorLanes,
     /// Shading per normal code ([`ShadeTable::UNSHADED`] for none).
@@ -532,7 +532,7 @@ fn shade_run(
     match (t.mode, shadow, t.shade0) {
         (Mode::Composite, Some(sh), Some(s0)) => {
             for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
-                let alpha = t.opacity[vox.opacity as usize] as u32;
+                let alpha = t.opacity[vox.opacity as usize];
                 let [r, g, b, _] = t.color[vox.scalar as usize];
                 let base = [r, g, b];
                 let rest = t.shade.shade_raw(vox.normal, base);
@@ -550,7 +550,7 @@ fn shade_run(
         }
         (Mode::Composite, _, _) if scale < ONE => {
             for (o, vox) in out.iter_mut().zip(src) {
-                let alpha = t.opacity[vox.opacity as usize] as u32;
+                let alpha = t.opacity[vox.opacity as usize];
                 let c = &t.color[vox.scalar as usize];
                 let a = fixed::mul(alpha, scale);
                 let [r, g, b, _] = k.premultiply(c, t.shade.entry_ref(vox.normal), a);
@@ -559,7 +559,7 @@ fn shade_run(
         }
         (Mode::Composite, _, _) => {
             for (o, vox) in out.iter_mut().zip(src) {
-                let alpha = t.opacity[vox.opacity as usize] as u32;
+                let alpha = t.opacity[vox.opacity as usize];
                 let c = &t.color[vox.scalar as usize];
                 *o = k.premultiply(c, t.shade.entry_ref(vox.normal), alpha);
             }
@@ -726,10 +726,13 @@ macro_rules! premultiply_sse41 {
                 _mm_srli_epi32::<15>(_mm_add_epi32(d, half)),
                 lanes(&e.specular),
             );
+            let a = _mm_set1_epi32(alpha as i32);
             let x = _mm_min_epu32(x, _mm_set1_epi32($crate::fixed::ONE as i32));
-            let x = _mm_mullo_epi32(x, _mm_set1_epi32(alpha as i32));
+            let x = _mm_mullo_epi32(x, a);
             let x = _mm_srli_epi32::<15>(_mm_add_epi32(x, half));
-            let p = _mm_insert_epi16::<3>(_mm_packus_epi32(x, x), alpha as i32);
+            // The padding lane becomes α, from the vector it was broadcast into.
+            let x = _mm_blend_epi16::<0xC0>(x, a);
+            let p = _mm_packus_epi32(x, x);
             bytemuck::cast(_mm_cvtsi128_si64(p))
         }
     };
@@ -1565,7 +1568,7 @@ mod tests {
         let mut next = rng(0x2545_f491_4f6c_dd1d);
         let color: ColorLanes = core::array::from_fn(|i| [i as u16 * 64, 7, 9, 0]);
         let shade = ShadeTable::UNSHADED;
-        let opacity: [u16; 256] = core::array::from_fn(|i| (i * 128) as u16);
+        let opacity: [u32; 256] = core::array::from_fn(|i| (i * 128) as u32);
         let t = SliceTables {
             opacity: &opacity,
             color: &color,
@@ -1711,7 +1714,7 @@ mod tests {
         };
         let color: ColorLanes = [[0; 4]; 256];
         let shade = ShadeTable::UNSHADED;
-        let opacity = [0u16; 256];
+        let opacity = [0u32; 256];
         for round in 0..400 {
             let ert = if round % 8 == 0 { 0 } else { next(ONE) };
             let px = |next: &mut dyn FnMut(u32) -> u32, max_alpha: u32| {

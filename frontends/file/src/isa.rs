@@ -295,7 +295,7 @@ mod tests {
             for (o, c) in frame.opacity.iter_mut().zip(frame.color.iter_mut()) {
                 // Opacities past one too: the vector kernels must match the scalar ones
                 // for any 16-bit input, not only for the tables a frame builds.
-                *o = rnd() as u16;
+                *o = rnd() as u16 as u32;
                 *c = lane(rnd());
             }
             let tables = frame.tables(&shade, None);
