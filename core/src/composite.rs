@@ -638,10 +638,10 @@ pub(crate) trait Kernels {
     fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64;
 }
 
-/// The portable kernels: [`touch`], [`premultiply`] and [`over_run`], which does not
-/// keep the run's highest opacity: as a reduction in its loop it stopped the compiler
-/// from vectorising the loop for baseline x86-64 (spheres256: 34 → 43 ms a frame), and
-/// on the Cortex-M3 it cost as much as it saved. So every run is looked at.
+/// The portable kernels: [`touch`], [`premultiply`], [`closed_bits`] and [`over_run`],
+/// which does not keep the run's highest opacity: as a reduction in its loop it stopped
+/// the compiler from vectorising the loop for baseline x86-64 (spheres256: 34 → 43 ms a
+/// frame), and on the Cortex-M3 it cost as much as it saved. So every run is looked at.
 pub(crate) struct Portable;
 
 impl Kernels for Portable {
@@ -1291,8 +1291,8 @@ pub(crate) fn closed_bits(px: &[Rgba], thr: u32) -> u64 {
 /// hardly enter: on the MR head, 19 K runs a frame of 7.6 pixels on average are looked
 /// at, and this kernel takes 1.5 % off the frame's instructions (callgrind). Runs
 /// shorter than four pixels go pixel by pixel; the last step of a longer run overlaps
-/// the one before it. A macro expanding to a closure,
-/// written inside the x86-64-v3 and v4 compositors (see [`premultiply_sse41`]).
+/// the one before it. A macro expanding to a closure, written inside the x86-64-v3 and
+/// v4 compositors (see [`premultiply_sse41`]).
 #[cfg(target_arch = "x86_64")]
 macro_rules! closed_bits_avx2 {
     () => {
