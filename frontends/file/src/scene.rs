@@ -22,7 +22,7 @@ use crate::bigbuf;
 use crate::isa::{self, Isa};
 use crate::steal::{Piece, Retire, Sharing};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 /// Everything about appearance that is decided when the volume is encoded.
@@ -411,20 +411,15 @@ type Start<'a> = (
 /// when the threads slept, 0.004 ms when they spin, out of a frame of about 1 ms. The
 /// limit bounds the waste when another process holds the other core.
 fn spin_until_done(running: &AtomicUsize) {
-    spin_while(|| running.load(Ordering::Acquire) != 0);
-}
-
-/// Spins while `busy` holds, for at most [`SPIN_LIMIT`].
-fn spin_while(busy: impl Fn() -> bool) {
     let start = Instant::now();
-    while busy() && start.elapsed() < SPIN_LIMIT {
+    while running.load(Ordering::Acquire) != 0 && start.elapsed() < SPIN_LIMIT {
         for _ in 0..64 {
             std::hint::spin_loop();
         }
     }
 }
 
-/// How long [`spin_while`] spins before leaving the wait to the pool.
+/// How long [`spin_until_done`] spins before leaving the wait to the pool.
 const SPIN_LIMIT: Duration = Duration::from_millis(2);
 
 /// Calls `work` once per item of `each`, the first on the calling thread and the others
@@ -506,15 +501,6 @@ pub struct Renderer {
     /// here, twice a frame; waking a parked worker took 2 µs right after its last job
     /// and 40–60 µs after a millisecond asleep.
     pool: Option<rayon::ThreadPool>,
-    /// Counts the times work was posted to the pool (a frame's bands, a warp). After
-    /// its warp a frame leaves a job on the pool that spins until the count moves on (at
-    /// most [`SPIN_LIMIT`]), so a worker is awake when the next frame of a running
-    /// animation posts its bands, instead of asleep since the warp; posting anything
-    /// ends the wait, so the job never holds up work. Two threads, three alternating runs at 256²:
-    /// brainsmall 0.61–0.62 → 0.57–0.58 ms a frame (1.58× → 1.69× one thread),
-    /// spheres64 1.51–1.54× → 1.61–1.67×, spheres128 1.80–1.83× → 1.87–1.88×, the head
-    /// unchanged (1.84×).
-    linger: Arc<AtomicUsize>,
     /// The instruction-set build of the compositing loop ([`Isa::detect`] by default).
     isa: Isa,
 }
@@ -559,7 +545,6 @@ impl Renderer {
             supersample: 1,
             fov: None,
             pool,
-            linger: Arc::new(AtomicUsize::new(0)),
             isa: Isa::detect(),
         }
     }
@@ -658,8 +643,6 @@ impl Renderer {
         // 256²), the worker then started 0.04 ms after the bands were posted instead of
         // 0.06–0.12 ms, and the compositing phase took 0.87–0.92 ms instead of
         // 0.95–0.98 ms on brainsmall, 3.86–4.11 ms instead of 4.45–4.61 ms on the head.
-        // In an animation the worker is usually still awake from the last frame
-        // ([`Renderer::linger`]), and this job only follows its wait.
         if let Some(pool) = &self.pool {
             if !look.shadows {
                 pool.spawn(|| {});
@@ -827,7 +810,6 @@ impl Renderer {
             .zip(self.rows.iter_mut().map(|rows| (rows, source.clone())))
             .zip(starts)
             .map(|((t, r), s)| (t, r, s));
-        self.linger.fetch_add(1, Ordering::Release);
         on_threads(pool, each, work, PANICKED)?;
         let done = !stopped.load(Ordering::Relaxed);
         self.extents_of = done.then_some([iw, ih]);
@@ -886,13 +868,7 @@ impl Renderer {
                 strip(i, chunk)?;
             }
         };
-        self.linger.fetch_add(1, Ordering::Release);
-        on_threads(pool, 0..self.rows.len(), work, PANICKED)?;
-        // A worker waits awake for the next frame's bands ([`Renderer::linger`]).
-        let linger = Arc::clone(&self.linger);
-        let frame = linger.load(Ordering::Acquire);
-        pool.spawn(move || spin_while(|| linger.load(Ordering::Acquire) == frame));
-        Ok(())
+        on_threads(pool, 0..self.rows.len(), work, PANICKED)
     }
 }
 
@@ -1248,8 +1224,8 @@ mod tests {
 
     /// The extents the compositing threads leave are a scan of the finished image, for
     /// every band split; an abandoned frame leaves none, and the warp scans instead.
-    /// A bright ball off the centre of a 37×30×26 volume, encoded.
-    fn ball() -> Encoded {
+    #[test]
+    fn held_extents_equal_a_scan_of_the_composited_image() {
         let dims = [37usize, 30, 26];
         let mut v = Vec::new();
         for z in 0..dims[2] {
@@ -1274,25 +1250,15 @@ mod tests {
             gradient: None,
             min_opacity: 0.02,
         };
-        encode(&raw, &class).unwrap()
-    }
-
-    /// Unshaded white, no fog, no shadows.
-    fn plain_look() -> Look {
-        Look {
+        let enc = encode(&raw, &class).unwrap();
+        let look = Look {
             mode: Mode::Composite,
             color: color_table(&[(0.0, [255, 255, 255])], (0, 255)).unwrap(),
             lighting: None,
             ert_threshold: 0.95,
             depth_cue: None,
             shadows: false,
-        }
-    }
-
-    #[test]
-    fn held_extents_equal_a_scan_of_the_composited_image() {
-        let enc = ball();
-        let look = plain_look();
+        };
         for threads in [1, 2, 3] {
             let mut r = Renderer::with_threads(&enc.grid, threads);
             for (rx, ry) in [(10.0, 20.0), (-40.0, 75.0), (80.0, -5.0)] {
@@ -1330,45 +1296,6 @@ mod tests {
                 .unwrap()
                 .is_none());
             assert_eq!(r.extents_of, None, "threads {threads}");
-        }
-    }
-
-    /// The job a frame leaves spinning on the pool after its warp ([`Renderer::linger`])
-    /// ends when anything is posted: a shadowed frame (composited on the calling
-    /// thread, warped on the pool), a second warp of the same frame and the next frame
-    /// all come out as on one thread.
-    #[test]
-    fn a_lingering_worker_changes_no_frame() {
-        let enc = ball();
-        let plain = plain_look();
-        let lit = Look {
-            lighting: Some(Lighting::default()),
-            shadows: true,
-            ..plain_look()
-        };
-        let mut one = Renderer::new(&enc.grid);
-        let mut two = Renderer::with_threads(&enc.grid, 2);
-        let mut posted = two.linger.load(Ordering::Relaxed);
-        for (k, look) in [&plain, &lit, &plain, &plain].into_iter().enumerate() {
-            let cam = Camera {
-                rotate_x: 15.0 * k as f64,
-                rotate_y: 40.0 - 25.0 * k as f64,
-                width: 64,
-                height: 48,
-            };
-            let want = one.render(&mut enc.volume().unwrap(), &cam, look).unwrap();
-            let got = two.render(&mut enc.volume().unwrap(), &cam, look).unwrap();
-            assert!(want == got, "frame {k}");
-            let frame = two
-                .composite(&mut enc.volume().unwrap(), &cam, look)
-                .unwrap();
-            let mut again = Vec::new();
-            two.warp_into(&frame.view, &mut again).unwrap();
-            two.warp_into(&frame.view, &mut again).unwrap();
-            assert!(want == again, "frame {k} warped twice");
-            let now = two.linger.load(Ordering::Relaxed);
-            assert!(now > posted, "frame {k} posted work");
-            posted = now;
         }
     }
 
