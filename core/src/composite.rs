@@ -38,11 +38,33 @@ pub enum Mode {
     Mip,
 }
 
+/// Opacity-corrected Q15 opacity per stored 8-bit opacity. The entries are 32 bits wide
+/// so that the vector shading kernels broadcast one straight from memory, but hold
+/// 16-bit values: a table is made only from a `[u16; 256]`, so an opacity times any
+/// Q15 factor fits 32 bits and every kernel reads the same value.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(transparent)]
+pub struct OpacityTable([u32; 256]);
+
+impl From<[u16; 256]> for OpacityTable {
+    fn from(t: [u16; 256]) -> Self {
+        OpacityTable(t.map(u32::from))
+    }
+}
+
+impl OpacityTable {
+    /// The corrected opacity of stored opacity `stored`.
+    #[inline(always)]
+    pub fn get(&self, stored: u8) -> u32 {
+        self.0[stored as usize]
+    }
+}
+
 /// Per-frame lookup tables the compositor reads.
 #[derive(Clone, Copy)]
 pub struct SliceTables<'a> {
-    /// Opacity-corrected Q15 opacity per stored 8-bit opacity (at most `u16::MAX`).
-    pub opacity: &'a [u32; 256],
+    /// Opacity-corrected Q15 opacity per stored 8-bit opacity.
+    pub opacity: &'a OpacityTable,
     /// Q15 RGB (and a padding lane) per quantised scalar.
     pub color: &'a ColorLanes,
     /// Shading per normal code ([`ShadeTable::UNSHADED`] for none).
@@ -532,7 +554,7 @@ fn shade_run(
     match (t.mode, shadow, t.shade0) {
         (Mode::Composite, Some(sh), Some(s0)) => {
             for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
-                let alpha = t.opacity[vox.opacity as usize];
+                let alpha = t.opacity.get(vox.opacity);
                 let [r, g, b, _] = t.color[vox.scalar as usize];
                 let base = [r, g, b];
                 let rest = t.shade.shade_raw(vox.normal, base);
@@ -550,7 +572,7 @@ fn shade_run(
         }
         (Mode::Composite, _, _) if scale < ONE => {
             for (o, vox) in out.iter_mut().zip(src) {
-                let alpha = t.opacity[vox.opacity as usize];
+                let alpha = t.opacity.get(vox.opacity);
                 let c = &t.color[vox.scalar as usize];
                 let a = fixed::mul(alpha, scale);
                 let [r, g, b, _] = k.premultiply(c, t.shade.entry_ref(vox.normal), a);
@@ -559,7 +581,7 @@ fn shade_run(
         }
         (Mode::Composite, _, _) => {
             for (o, vox) in out.iter_mut().zip(src) {
-                let alpha = t.opacity[vox.opacity as usize];
+                let alpha = t.opacity.get(vox.opacity);
                 let c = &t.color[vox.scalar as usize];
                 *o = k.premultiply(c, t.shade.entry_ref(vox.normal), alpha);
             }
@@ -1568,7 +1590,7 @@ mod tests {
         let mut next = rng(0x2545_f491_4f6c_dd1d);
         let color: ColorLanes = core::array::from_fn(|i| [i as u16 * 64, 7, 9, 0]);
         let shade = ShadeTable::UNSHADED;
-        let opacity: [u32; 256] = core::array::from_fn(|i| (i * 128) as u32);
+        let opacity = OpacityTable::from(core::array::from_fn(|i| (i * 128) as u16));
         let t = SliceTables {
             opacity: &opacity,
             color: &color,
@@ -1714,7 +1736,7 @@ mod tests {
         };
         let color: ColorLanes = [[0; 4]; 256];
         let shade = ShadeTable::UNSHADED;
-        let opacity = [0u32; 256];
+        let opacity = OpacityTable::from([0u16; 256]);
         for round in 0..400 {
             let ert = if round % 8 == 0 { 0 } else { next(ONE) };
             let px = |next: &mut dyn FnMut(u32) -> u32, max_alpha: u32| {

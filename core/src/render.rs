@@ -8,7 +8,7 @@
 #[cfg(target_arch = "x86_64")]
 use crate::classify::Voxel;
 use crate::classify::{ColorLanes, ColorTable};
-use crate::composite::{self, Intermediate, Mode, Rgba, SliceTables};
+use crate::composite::{self, Intermediate, Mode, OpacityTable, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, Error};
 use crate::fixed;
@@ -119,10 +119,8 @@ impl<const PIX: usize, const ROW: usize, const W: usize> Default for StaticWorks
 pub struct Frame {
     /// The factored view.
     pub view: Factorization,
-    /// Opacity correction for this view's sample distance, Q15 per stored opacity, in
-    /// 32-bit entries: the vector shading kernels broadcast an entry straight from
-    /// memory.
-    pub opacity: [u32; 256],
+    /// Opacity correction for this view's sample distance, Q15 per stored opacity.
+    pub opacity: OpacityTable,
     /// The settings' colour table in the compositor's four-lane form.
     pub color: ColorLanes,
     /// Early-ray-termination threshold, Q15.
@@ -248,7 +246,7 @@ impl Frame {
             ray_gain: view.perspective.as_ref().map(RayGain::new),
             shadow,
             depth,
-            opacity: crate::classify::opacity_correction(view.step_ratio).map(u32::from),
+            opacity: OpacityTable::from(crate::classify::opacity_correction(view.step_ratio)),
             color: crate::classify::color_lanes(settings.color),
             view,
             ert,
@@ -641,7 +639,7 @@ mod tests {
             if v.opacity <= 3 {
                 return [0; 4];
             }
-            let a = tables.opacity[v.opacity as usize];
+            let a = tables.opacity.get(v.opacity);
             let [r, g, b, _] = tables.color[v.scalar as usize];
             let c = tables.shade.shade(v.normal, [r, g, b]);
             [
@@ -817,7 +815,7 @@ mod tests {
                     render(&mut vol, &cam, &settings, &mut ws, &mut sink).unwrap();
                 }
                 // Dense path with the same tables.
-                let opacity = classify::opacity_correction(view.step_ratio).map(u32::from);
+                let opacity = OpacityTable::from(classify::opacity_correction(view.step_ratio));
                 let lanes = classify::color_lanes(&color);
                 let tables = SliceTables {
                     opacity: &opacity,

@@ -197,7 +197,7 @@ pub fn fill_shade(
 mod tests {
     use super::*;
     use shearwarp_core::classify::{Grid, Voxel};
-    use shearwarp_core::composite::Mode;
+    use shearwarp_core::composite::{Mode, OpacityTable};
     use shearwarp_core::depth::DepthCue;
     use shearwarp_core::render::Settings;
     use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
@@ -292,12 +292,14 @@ mod tests {
             };
             let mut unused = Box::new(ShadeTable::UNSHADED);
             let mut frame = Frame::new(&grid, &cam, &settings, &mut unused, None).unwrap();
-            for (o, c) in frame.opacity.iter_mut().zip(frame.color.iter_mut()) {
-                // Opacities past one too: the vector kernels must match the scalar ones
-                // for any 16-bit input, not only for the tables a frame builds.
-                *o = rnd() as u16 as u32;
+            // Opacities past one too: the vector kernels must match the scalar ones for
+            // any 16-bit input, not only for the tables a frame builds.
+            let mut opacity = [0u16; 256];
+            for (o, c) in opacity.iter_mut().zip(frame.color.iter_mut()) {
+                *o = rnd() as u16;
                 *c = lane(rnd());
             }
+            frame.opacity = OpacityTable::from(opacity);
             let tables = frame.tables(&shade, None);
             let [iw, ih] = frame.view.intermediate;
             let pix = view::max_intermediate_pixels(dims);
