@@ -1105,13 +1105,18 @@ fn composite_slice_supersampled(
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let width = img.width;
     let row_of = |j: i64| slice.row(j);
+    // Scanlines reading rows jt and jt + 1 composite something only for jt from the row
+    // before the first non-empty one to the last non-empty one.
+    let Some((j_first, j_last)) = slice.visible_rows(0, nj) else {
+        return Ok(());
+    };
     // Rows held in `top` / `bot` (voxel row indices), i64::MIN when none.
     let mut held = i64::MIN;
     for v in img.row0..img.row0 + img.rows {
         let pv = v as i64 * one / ss - tv;
         let jt = pv.div_euclid(one);
         let frv = pv.rem_euclid(one) as u32;
-        if jt < -1 || jt >= nj as i64 {
+        if jt < j_first as i64 - 1 || jt > j_last as i64 {
             continue;
         }
         if jt != held {

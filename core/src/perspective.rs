@@ -239,9 +239,14 @@ pub(crate) fn composite_slice(
     let mut wx = [0u32; MAX_TAPS];
     let mut wy = [0u32; MAX_TAPS];
     let rows_held = img.pixels().len() / width.max(1);
+    // Only scanlines with a tap on the rows from the first non-empty one to the last
+    // composite anything.
+    let Some((j_first, j_last)) = slice.visible_rows(0, nj) else {
+        return Ok(());
+    };
     for v in img.first_row()..img.first_row() + rows_held {
         let (j0, count) = ys.taps(v as i64, &mut wy);
-        if j0 + count as i64 <= 0 || j0 >= nj as i64 {
+        if j0 + count as i64 <= j_first as i64 || j0 > j_last as i64 {
             continue;
         }
         // Filter the voxel rows under this scanline that the ring lacks; list the ring
