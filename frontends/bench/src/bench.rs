@@ -343,6 +343,15 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             if let Some(r) = &ref_img {
                 sr.psnr_sw = Some(metrics::psnr_rgb8(&sw_img, r));
                 sr.psnr_vp = vp_rgb.as_ref().map(|v| metrics::psnr_rgb8(v, r));
+                // The table rounds to 0.1 dB; changes to quality are read here.
+                eprintln!(
+                    "  {size}x{size} PSNR at {:?}: shearwarp {:.3} dB{}",
+                    scene.psnr_view,
+                    sr.psnr_sw.unwrap_or(0.0),
+                    sr.psnr_vp
+                        .map(|p| format!(", VolPack {p:.3} dB"))
+                        .unwrap_or_default(),
+                );
             }
             if let Some(dir) = &opts.images_dir {
                 std::fs::create_dir_all(dir)?;
