@@ -380,13 +380,45 @@ pub fn classify_above(
     threshold: Option<u8>,
     out: &mut [Voxel],
 ) -> Result<(), Error> {
+    let slices = 0..grid.dims[2];
+    classify_slices(
+        grid,
+        scalars,
+        opacity_table,
+        gradient_table,
+        threshold,
+        slices,
+        out,
+    )
+}
+
+/// [`classify_above`] of the z slices `slices` only, written to `out` from its start
+/// (`out[0]` is voxel `(0, 0, slices.start)`); the records are those [`classify_above`]
+/// gives them (neighbours in the slices on either side are read from `scalars`). An
+/// encoder that consumes slices as they come needs no classified copy of the whole
+/// volume, only a few slices of one.
+pub fn classify_slices(
+    grid: &Grid,
+    scalars: Scalars<'_>,
+    opacity_table: &[u8],
+    gradient_table: Option<&[u16; 256]>,
+    threshold: Option<u8>,
+    slices: core::ops::Range<usize>,
+    out: &mut [Voxel],
+) -> Result<(), Error> {
     let n = grid.voxel_count();
     if scalars.len() != n {
         return Err(Error::BadDimensions {
             reason: "data length does not match the dimensions",
         });
     }
-    need("voxels", n, out.len())?;
+    if slices.start > slices.end || slices.end > grid.dims[2] {
+        return Err(Error::BadParameter {
+            reason: "slices lie outside the volume",
+        });
+    }
+    let plane = grid.dims[0] * grid.dims[1];
+    need("voxels", slices.len() * plane, out.len())?;
     need("opacity table", scalars.value_count(), opacity_table.len())?;
     let range = scalars.range();
     let k = Kernel {
@@ -397,9 +429,10 @@ pub fn classify_above(
         gradient_table,
         normals_above: threshold,
     };
+    let out = &mut out[..slices.len() * plane];
     match scalars {
-        Scalars::U8(d) => k.run(d, &mut out[..n]),
-        Scalars::U16(d) => k.run(d, &mut out[..n]),
+        Scalars::U8(d) => k.run(d, slices, out),
+        Scalars::U16(d) => k.run(d, slices, out),
     }
     Ok(())
 }
@@ -417,13 +450,20 @@ struct Kernel<'a> {
 }
 
 impl Kernel<'_> {
-    fn run<T: Copy + Into<i32>>(&self, d: &[T], out: &mut [Voxel]) {
+    /// Slices `slices` of `d` into `out` (which starts at the first of them).
+    fn run<T: Copy + Into<i32>>(
+        &self,
+        d: &[T],
+        slices: core::ops::Range<usize>,
+        out: &mut [Voxel],
+    ) {
         let [nx, ny, nz] = self.dims;
         let (sy, sz) = (nx, nx * ny);
-        for z in 0..nz {
+        for z in slices.clone() {
             for y in 0..ny {
                 let row = z * sz + y * sy;
-                let dst = &mut out[row..row + nx];
+                let at = row - slices.start * sz;
+                let dst = &mut out[at..at + nx];
                 // y and z are fixed along the row: their differences are interior or not
                 // for the whole row; x is interior except at the two ends.
                 if nx >= 3 && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz {
@@ -594,6 +634,35 @@ mod tests {
         assert!(OpacityTf::new(&[(1.0, [1.5])]).is_err());
         assert!(OpacityTf::new(&[(f64::NAN, [0.5])]).is_err());
         assert!(ColorTf::new(&[(0.0, [0.0, -0.1, 0.0])]).is_err());
+    }
+
+    /// Classifying a volume a few slices at a time gives the records of classifying it
+    /// whole, whatever the cut (the slices' neighbours come from the scalars).
+    #[test]
+    fn slices_classify_as_the_whole_volume_does() {
+        let dims = [5, 4, 7];
+        let grid = Grid::new(dims, [1.0, 0.5, 2.0]).unwrap();
+        let data: [u8; 140] = core::array::from_fn(|n| ((n as u32 * 2_654_435_761) >> 24) as u8);
+        let mut table = [0u8; 256];
+        for (v, a) in table.iter_mut().enumerate() {
+            *a = (v as u8).saturating_sub(60);
+        }
+        let s = Scalars::U8(&data);
+        let mut whole = [Voxel::default(); 140];
+        classify_above(&grid, s, &table, None, Some(20), &mut whole).unwrap();
+        let plane = 20;
+        for step in 1..=7 {
+            let mut parts = [Voxel::default(); 140];
+            for z0 in (0..7).step_by(step) {
+                let z1 = (z0 + step).min(7);
+                let out = &mut parts[z0 * plane..z1 * plane];
+                classify_slices(&grid, s, &table, None, Some(20), z0..z1, out).unwrap();
+            }
+            assert_eq!(parts, whole, "{step} slices at a time");
+        }
+        let mut out = [Voxel::default(); 140];
+        assert!(classify_slices(&grid, s, &table, None, None, 6..8, &mut out).is_err());
+        assert!(classify_slices(&grid, s, &table, None, None, 2..4, &mut out[..39]).is_err());
     }
 
     /// The row kernel with its interior fast path equals the plain per-voxel

@@ -1,7 +1,8 @@
 //! Large preprocessing buffers backed by huge pages where the kernel offers them.
 //!
-//! Encoding a 256³ volume writes a 64 MiB dense classified copy, a 16 MiB transpose
-//! slab and three axis copies, all freshly allocated. With 4 KiB pages that is tens of
+//! Encoding a 256³ volume through a dense classified copy (the viewer's route) writes
+//! that 64 MiB copy, a 16 MiB transpose slab and three axis copies, all freshly
+//! allocated; the file frontend's route still writes the three copies. With 4 KiB pages that is tens of
 //! thousands of page faults, and `perf` put the kernel's fault and page-clearing paths
 //! at about a fifth of the encoding. Linux backs a region with 2 MiB pages on request
 //! (`MADV_HUGEPAGE`; its usual setting, `madvise`, does so only when asked), which

@@ -8,6 +8,7 @@ pub mod formats;
 pub mod info;
 pub mod isa;
 pub mod presets;
+pub mod reslice;
 pub mod scene;
 mod steal;
 pub mod tffile;
