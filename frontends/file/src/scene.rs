@@ -65,10 +65,9 @@ pub fn encode(raw: &RawVolume, class: &Classification) -> Result<Encoded, Error>
 /// the z copy is classified and encoded a few slices at a time, its slices split between
 /// the threads, and the x and y copies are re-sliced from it ([`reslice`]). Against
 /// classifying into a dense copy and transposing it for x and y (which the viewer still
-/// does, see [`encode_axis`]): one thread, medians of five, alternating runs,
-/// nested spheres 256³ 156–191 → 115–119 ms, the hires brain 382–428 → 375–402 ms,
-/// the head within the spread (89–101 ms both); peak memory encoding the hires brain
-/// 363 → 246 MB.
+/// does, see [`encode_axis`]): one thread, medians of five, alternating runs, nested
+/// spheres 256³ 156–191 → 115–138 ms, the MR heads within the spread; peak memory
+/// encoding the hires brain 363 → 246 MB.
 pub fn encode_threads(
     raw: &RawVolume,
     class: &Classification,
