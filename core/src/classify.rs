@@ -642,7 +642,8 @@ mod tests {
     fn slices_classify_as_the_whole_volume_does() {
         let dims = [5, 4, 7];
         let grid = Grid::new(dims, [1.0, 0.5, 2.0]).unwrap();
-        let data: [u8; 140] = core::array::from_fn(|n| ((n as u32 * 2_654_435_761) >> 24) as u8);
+        let data: [u8; 140] =
+            core::array::from_fn(|n| ((n as u32).wrapping_mul(2_654_435_761) >> 24) as u8);
         let mut table = [0u8; 256];
         for (v, a) in table.iter_mut().enumerate() {
             *a = (v as u8).saturating_sub(60);
