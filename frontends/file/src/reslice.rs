@@ -351,6 +351,10 @@ mod tests {
                         assert!(got[a] == want[a], "{dims:?} axis {a} threads {threads}");
                     }
                 }
+                // The cycle closes: the z copy re-sliced from the y copy.
+                let y = &want[Axis::Y as usize];
+                let from_y = next_axis(&RleAxis::new(dims, Axis::Y, &y.0, &y.1, &y.2).unwrap());
+                assert!(from_y.unwrap() == want[Axis::Z as usize], "{dims:?} y to z");
             }
         }
     }
