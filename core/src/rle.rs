@@ -138,15 +138,9 @@ impl RunWriter<'_> {
         self.emit(self.cur_len as u8);
         self.cur_len = 0;
     }
-    /// A run of `len` voxels of one kind: runs longer than 255 split as `push` splits
-    /// them (255, an empty run of the other kind, the rest).
-    fn emit_run(&mut self, mut len: usize) {
-        while len > 255 {
-            self.emit(255);
-            self.emit(0);
-            len -= 255;
-        }
-        self.emit(len as u8);
+    /// A run of `len` voxels of one kind, split as `push` splits it ([`split_run`]).
+    fn emit_run(&mut self, len: usize) {
+        split_run(len, |b| self.emit(b));
     }
     /// A whole scanline at once, run by run (the same output as `push` per voxel and
     /// `end_scanline`, which the tests check): the visibility tests are a tight loop
@@ -200,6 +194,19 @@ impl RunWriter<'_> {
         }
         self.cur_visible = false;
     }
+}
+
+/// The run lengths of a run of `len` voxels of one kind, passed to `emit` in order: runs
+/// longer than 255 are split into 255, an empty run of the other kind, and the rest (the
+/// format's rule, shared with encoders outside the core).
+#[inline(always)]
+pub fn split_run(mut len: usize, mut emit: impl FnMut(u8)) {
+    while len > 255 {
+        emit(255);
+        emit(0);
+        len -= 255;
+    }
+    emit(len as u8);
 }
 
 /// Counts the arrays needed to encode `dense` along `axis` with opacity `threshold`.

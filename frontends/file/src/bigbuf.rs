@@ -2,13 +2,13 @@
 //!
 //! Encoding a 256³ volume through a dense classified copy (the viewer's route) writes
 //! that 64 MiB copy, a 16 MiB transpose slab and three axis copies, all freshly
-//! allocated; the file frontend's route still writes the three copies. With 4 KiB pages that is tens of
-//! thousands of page faults, and `perf` put the kernel's fault and page-clearing paths
-//! at about a fifth of the encoding. Linux backs a region with 2 MiB pages on request
-//! (`MADV_HUGEPAGE`; its usual setting, `madvise`, does so only when asked), which
-//! turns those faults into a few dozen: the nested-spheres 256³ encoding went from
-//! 194–202 ms to 137–141 ms on one thread here (alternating runs). Elsewhere the
-//! buffers are plain vectors.
+//! allocated; the file frontend's route still writes the three copies. With 4 KiB
+//! pages that is tens of thousands of page faults, and `perf` put the kernel's fault
+//! and page-clearing paths at about a fifth of the encoding. Linux backs a region with
+//! 2 MiB pages on request (`MADV_HUGEPAGE`; its usual setting, `madvise`, does so only
+//! when asked), which turns those faults into a few dozen: the nested-spheres 256³
+//! encoding went from 194–202 ms to 137–141 ms on one thread here (alternating runs).
+//! Elsewhere the buffers are plain vectors.
 
 /// A vector of `n` copies of `value`, its memory advised for huge pages before it is
 /// first written.

@@ -191,24 +191,21 @@ pub fn next_axis(src: &RleAxis<'_>) -> Result<AxisArrays, Error> {
 /// Calls `f(i, j, k, voxels)` for every visible run of `src`, in storage order: the run
 /// `voxels` starts at `(i, j, k)` and runs along `i`.
 fn visit(src: &RleAxis<'_>, mut f: impl FnMut(usize, usize, usize, &[Voxel])) {
-    let [_, nj, _] = src.axis().permuted_dims(src.dims());
-    let (runs, voxels, scans) = src.parts();
-    // `RleAxis` validated the arrays: every scanline's runs lie in `runs`, sum to its
-    // width and account for exactly its voxels, so the slicing below stays in bounds.
-    for (line, w) in scans.windows(2).enumerate() {
-        let (k, j) = (line / nj, line % nj);
-        let lr = &runs[w[0].run as usize..w[1].run as usize];
-        let mut vox = &voxels[w[0].voxel as usize..w[1].voxel as usize];
-        let mut i = 0;
-        for pair in lr.chunks_exact(2) {
-            i += pair[0] as usize;
-            let n = pair[1] as usize;
-            let (seen, rest) = vox.split_at(n);
-            if n > 0 {
-                f(i, j, k, seen);
+    let [_, nj, nk] = src.axis().permuted_dims(src.dims());
+    for (k, slice) in (0..nk).map_while(|k| src.slice(k)).enumerate() {
+        for j in 0..nj {
+            let (runs, mut vox) = slice.scanline(j);
+            let mut i = 0;
+            for pair in runs.chunks_exact(2) {
+                i += pair[0] as usize;
+                let n = pair[1] as usize;
+                let (seen, rest) = vox.split_at(n);
+                if n > 0 {
+                    f(i, j, k, seen);
+                }
+                vox = rest;
+                i += n;
             }
-            vox = rest;
-            i += n;
         }
     }
 }
@@ -236,12 +233,8 @@ fn scanline_runs(pos: &[u16], width: usize, runs: &mut Vec<u8>) {
 }
 
 /// One run of `len` voxels of one kind, split as the core's encoder splits it.
-fn push_run(runs: &mut Vec<u8>, mut len: usize) {
-    while len > 255 {
-        runs.extend_from_slice(&[255, 0]);
-        len -= 255;
-    }
-    runs.push(len as u8);
+fn push_run(runs: &mut Vec<u8>, len: usize) {
+    rle::split_run(len, |b| runs.push(b));
 }
 
 /// `n` as a run or voxel offset, which the format holds in 32 bits.
