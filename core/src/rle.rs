@@ -103,13 +103,25 @@ struct RunWriter<'a> {
     cur_len: u32,
 }
 
-impl RunWriter<'_> {
+impl<'a> RunWriter<'a> {
+    /// A writer at the start of an encoding; without arrays it only counts.
+    fn new(runs: Option<&'a mut [u8]>, voxels: Option<&'a mut [Voxel]>) -> Self {
+        RunWriter {
+            runs,
+            voxels,
+            n_runs: 0,
+            n_vox: 0,
+            cur_visible: false,
+            cur_len: 0,
+        }
+    }
     fn emit(&mut self, len: u8) {
-        if let Some(r) = self.runs.as_deref_mut() {
-            // Past the end only the count grows; `encode` reports the size needed.
-            if let Some(slot) = r.get_mut(self.n_runs) {
-                *slot = len;
-            }
+        if let Some(slot) = self
+            .runs
+            .as_deref_mut()
+            .and_then(|r| r.get_mut(self.n_runs))
+        {
+            *slot = len;
         }
         self.n_runs += 1;
     }
@@ -138,52 +150,42 @@ impl RunWriter<'_> {
         self.emit(self.cur_len as u8);
         self.cur_len = 0;
     }
-    /// A run of `len` voxels of one kind, split as `push` splits it ([`split_run`]).
-    fn emit_run(&mut self, len: usize) {
-        split_run(len, |b| self.emit(b));
-    }
     /// A whole scanline at once, run by run (the same output as `push` per voxel and
     /// `end_scanline`, which the tests check): the visibility tests are a tight loop
     /// and each visible run is copied in one go.
     fn scanline(&mut self, row: &[Voxel], threshold: u8) {
         debug_assert!(!self.cur_visible && self.cur_len == 0);
-        let mut i = 0;
-        loop {
-            let clear = row[i..]
-                .iter()
-                .position(|v| is_visible(v, threshold))
-                .unwrap_or(row.len() - i);
-            self.emit_run(clear);
-            i += clear;
-            if i == row.len() {
-                // Close on an empty visible run: runs come in pairs.
-                self.emit(0);
-                return;
-            }
-            let seen = row[i..]
-                .iter()
-                .position(|v| !is_visible(v, threshold))
-                .unwrap_or(row.len() - i);
-            self.emit_run(seen);
-            if let Some(out) = self.voxels.as_deref_mut() {
-                if let Some(dst) = out.get_mut(self.n_vox..self.n_vox + seen) {
-                    let src = &row[i..i + seen];
-                    if seen < 16 {
-                        // Short runs are most runs: a loop beats a memmove call.
-                        for (d, v) in dst.iter_mut().zip(src) {
-                            *d = *v;
-                        }
-                    } else {
-                        dst.copy_from_slice(src);
+        let RunWriter {
+            runs,
+            voxels,
+            n_runs,
+            n_vox,
+            ..
+        } = self;
+        let copied = visible_spans(row, threshold).inspect(|&(i, seen)| {
+            if let Some(dst) = voxels
+                .as_deref_mut()
+                .and_then(|o| o.get_mut(*n_vox..*n_vox + seen))
+            {
+                let src = &row[i..i + seen];
+                if seen < 16 {
+                    // Short runs are most runs: a loop beats a memmove call.
+                    for (d, v) in dst.iter_mut().zip(src) {
+                        *d = *v;
                     }
+                } else {
+                    dst.copy_from_slice(src);
                 }
             }
-            self.n_vox += seen;
-            i += seen;
-            if i == row.len() {
-                return;
+            *n_vox += seen;
+        });
+        scanline_runs(copied, row.len(), |b| {
+            // Past the end only the count grows; `encode` reports the size needed.
+            if let Some(slot) = runs.as_deref_mut().and_then(|r| r.get_mut(*n_runs)) {
+                *slot = b;
             }
-        }
+            *n_runs += 1;
+        });
     }
     fn end_scanline(&mut self) {
         self.flush();
@@ -209,6 +211,55 @@ pub fn split_run(mut len: usize, mut emit: impl FnMut(u8)) {
     emit(len as u8);
 }
 
+/// The run lengths of one scanline of `width` voxels, passed to `emit` in order, from
+/// the spans of its visible voxels (`(start, length)`: in order, non-empty, within the
+/// scanline, and separated by at least one transparent voxel). This is the format's
+/// rule, shared with encoders outside the core: a transparent run (maybe empty) before
+/// each visible run, runs longer than 255 split ([`split_run`]), and a scanline that
+/// ends transparent, or holds no visible voxel, closed by an empty visible run, so that
+/// runs come in pairs.
+#[inline(always)]
+pub fn scanline_runs(
+    visible: impl Iterator<Item = (usize, usize)>,
+    width: usize,
+    mut emit: impl FnMut(u8),
+) {
+    let (mut at, mut any) = (0, false);
+    for (start, len) in visible {
+        // Saturating: spans out of order give wrong runs, which the reader's checks
+        // reject, rather than a panic.
+        split_run(start.saturating_sub(at), &mut emit);
+        split_run(len, &mut emit);
+        at = start + len;
+        any = true;
+    }
+    if at < width || !any {
+        split_run(width.saturating_sub(at), &mut emit);
+        emit(0);
+    }
+}
+
+/// The spans `(start, length)` of `row`'s voxels visible at `threshold`, in order.
+#[inline(always)]
+fn visible_spans(row: &[Voxel], threshold: u8) -> impl Iterator<Item = (usize, usize)> + '_ {
+    let mut i = 0;
+    core::iter::from_fn(move || {
+        let start = i + row[i..]
+            .iter()
+            .position(|v| is_visible(v, threshold))
+            .unwrap_or(row.len() - i);
+        if start == row.len() {
+            return None;
+        }
+        let len = row[start..]
+            .iter()
+            .position(|v| !is_visible(v, threshold))
+            .unwrap_or(row.len() - start);
+        i = start + len;
+        Some((start, len))
+    })
+}
+
 /// Counts the arrays needed to encode `dense` along `axis` with opacity `threshold`.
 pub fn measure(
     dense: &[Voxel],
@@ -217,14 +268,7 @@ pub fn measure(
     threshold: u8,
 ) -> Result<AxisSizes, Error> {
     need("dense voxels", grid.voxel_count(), dense.len())?;
-    let mut w = RunWriter {
-        runs: None,
-        voxels: None,
-        n_runs: 0,
-        n_vox: 0,
-        cur_visible: false,
-        cur_len: 0,
-    };
+    let mut w = RunWriter::new(None, None);
     walk(dense, grid, axis, |v| match v {
         Some(v) => w.push(v, is_visible(v, threshold)),
         None => w.end_scanline(),
@@ -288,14 +332,7 @@ impl<'a> Encoder<'a> {
         let scans = &mut scans[..nj * nk + 1];
         scans[0] = ScanIndex { run: 0, voxel: 0 };
         Ok(Encoder {
-            writer: RunWriter {
-                runs: Some(runs),
-                voxels: Some(voxels),
-                n_runs: 0,
-                n_vox: 0,
-                cur_visible: false,
-                cur_len: 0,
-            },
+            writer: RunWriter::new(Some(runs), Some(voxels)),
             scans,
             dims: grid.dims,
             axis,
@@ -693,6 +730,65 @@ mod tests {
                     let expect = if a.opacity > 0 { *a } else { Voxel::default() };
                     assert_eq!(expect, *b);
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn scanline_runs_come_in_pairs_split_and_closed() {
+        let runs = |spans: &[(usize, usize)], width| {
+            let (mut out, mut n) = ([0u8; 16], 0);
+            scanline_runs(spans.iter().copied(), width, |b| {
+                out[n] = b;
+                n += 1;
+            });
+            (out, n)
+        };
+        let check = |spans: &[(usize, usize)], width, want: &[u8]| {
+            let (out, n) = runs(spans, width);
+            assert_eq!(&out[..n], want, "{spans:?} in {width}");
+        };
+        check(&[], 0, &[0, 0]);
+        check(&[], 300, &[255, 0, 45, 0]);
+        check(&[(0, 3)], 3, &[0, 3]);
+        check(&[(1, 1), (3, 1)], 5, &[1, 1, 1, 1, 1, 0]);
+        check(&[(0, 300)], 300, &[0, 255, 0, 45]);
+        check(&[(256, 2)], 258, &[255, 0, 1, 2]);
+    }
+
+    #[test]
+    fn a_scanline_at_once_is_encoded_as_voxel_by_voxel() {
+        let mut s = 12345u32;
+        for len in [0usize, 1, 2, 7, 255, 256, 300, 520] {
+            for density in [0u32, 3, 8, 13, 16] {
+                let mut row = [Voxel::default(); 520];
+                for v in &mut row[..len] {
+                    s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+                    // Long visible and transparent stretches as well as short ones.
+                    let on = (s >> 28) < density || (density == 13 && len > 300);
+                    v.opacity = if on {
+                        (s >> 8) as u8 | 1
+                    } else {
+                        (s >> 9) as u8 & 1
+                    };
+                    v.scalar = (s >> 16) as u8;
+                }
+                let row = &row[..len];
+                let (mut runs_a, mut runs_b) = ([0u8; 1100], [0u8; 1100]);
+                let (mut vox_a, mut vox_b) = ([Voxel::default(); 520], [Voxel::default(); 520]);
+                let writer = |runs, voxels| RunWriter::new(Some(runs), Some(voxels));
+                let mut a = writer(&mut runs_a[..], &mut vox_a[..]);
+                a.scanline(row, 1);
+                let (na, va) = (a.n_runs, a.n_vox);
+                let mut b = writer(&mut runs_b[..], &mut vox_b[..]);
+                for v in row {
+                    b.push(v, is_visible(v, 1));
+                }
+                b.end_scanline();
+                let (nb, vb) = (b.n_runs, b.n_vox);
+                assert_eq!((na, va), (nb, vb), "length {len}, density {density}");
+                assert_eq!(runs_a[..na], runs_b[..nb]);
+                assert_eq!(vox_a[..va], vox_b[..vb]);
             }
         }
     }

@@ -211,30 +211,17 @@ fn visit(src: &RleAxis<'_>, mut f: impl FnMut(usize, usize, usize, &[Voxel])) {
 }
 
 /// Appends the runs of a scanline `width` voxels long whose visible voxels lie at the
-/// ascending positions `pos`, as the core's encoder writes them: a transparent run
-/// (maybe empty) before each visible run, runs over 255 split by an empty run of the
-/// other kind, and a scanline that ends transparent closed by an empty visible run.
+/// ascending positions `pos`, by the format's rule ([`rle::scanline_runs`]).
 fn scanline_runs(pos: &[u16], width: usize, runs: &mut Vec<u8>) {
-    let mut at = 0;
     let mut rest = pos;
-    while let Some(&first) = rest.first() {
-        let first = first as usize;
+    let spans = core::iter::from_fn(|| {
+        let first = *rest.first()? as usize;
         // The visible run: positions that follow one another.
         let len = 1 + rest.windows(2).take_while(|w| w[1] == w[0] + 1).count();
-        push_run(runs, first - at);
-        push_run(runs, len);
-        at = first + len;
         rest = &rest[len..];
-    }
-    if at < width || pos.is_empty() {
-        push_run(runs, width - at);
-        runs.push(0);
-    }
-}
-
-/// One run of `len` voxels of one kind, split as the core's encoder splits it.
-fn push_run(runs: &mut Vec<u8>, len: usize) {
-    rle::split_run(len, |b| runs.push(b));
+        Some((first, len))
+    });
+    rle::scanline_runs(spans, width, |b| runs.push(b));
 }
 
 /// `n` as a run or voxel offset, which the format holds in 32 bits.
