@@ -13,8 +13,11 @@ use std::time::Instant;
 #[derive(Clone, Copy, Debug)]
 pub struct Ceiling {
     pub threads: usize,
-    /// An integer loop in registers (no memory traffic).
+    /// An integer loop in registers (no memory traffic), bound by one chain's latency.
     pub compute: f64,
+    /// Vector multiply-adds in registers, bound by the vector units' throughput as the
+    /// compositor's kernels are (AVX2 where the CPU has it).
+    pub vector: f64,
     /// Each thread reading its own buffer, larger than the last-level cache, one load
     /// per cache line.
     pub stream: f64,
@@ -28,6 +31,81 @@ fn compute(n: u64) -> u64 {
         y = (y ^ (x >> 17)).rotate_left(5).wrapping_add(x);
     }
     x ^ y
+}
+
+/// Sixty-four independent lanes (eight AVX2 registers' worth) of multiply-adds, `n`
+/// steps: throughput-bound, where [`compute`] is latency-bound. A core that slows down
+/// when its neighbour also runs wide vector code (shared power budget, shared pipelines)
+/// shows it here and not in [`compute`]. The AVX2 build runs where the CPU has it, as the
+/// compositor's x86-64-v3 build does.
+fn vector(n: u64) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { vector_avx2(n) };
+    }
+    lanes(n)
+}
+
+/// [`lanes`] in AVX2 registers, one chain a register (the compiler keeps [`lanes`] in
+/// scalar registers).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn vector_avx2(n: u64) -> u32 {
+    use std::arch::x86_64::*;
+    let m = _mm256_set1_epi32(MUL as i32);
+    let mut acc = [_mm256_setzero_si256(); 8];
+    for (c, a) in acc.iter_mut().enumerate() {
+        *a = _mm256_set1_epi32(c as i32 + 1);
+    }
+    for i in 0..n {
+        let k = _mm256_set1_epi32((i as u32 | 1) as i32);
+        for a in &mut acc {
+            *a = _mm256_add_epi32(_mm256_mullo_epi32(*a, m), k);
+        }
+    }
+    let mut x = _mm256_setzero_si256();
+    for a in acc {
+        x = _mm256_xor_si256(x, a);
+    }
+    let lane = [
+        _mm256_extract_epi32::<0>(x),
+        _mm256_extract_epi32::<1>(x),
+        _mm256_extract_epi32::<2>(x),
+        _mm256_extract_epi32::<3>(x),
+        _mm256_extract_epi32::<4>(x),
+        _mm256_extract_epi32::<5>(x),
+        _mm256_extract_epi32::<6>(x),
+        _mm256_extract_epi32::<7>(x),
+    ];
+    lane.iter().fold(0, |s, &v| s.rotate_left(1) ^ v as u32)
+}
+
+const MUL: u32 = 0x9e37_79b9;
+
+/// The portable form of [`vector`]: eight chains of eight lanes, chain `c` starting at
+/// `c + 1`, each step `x·MUL + (i | 1)`; the chains XORed lane by lane, then the lanes
+/// folded.
+fn lanes(n: u64) -> u32 {
+    let mut acc = [[0u32; 8]; 8];
+    for (c, chain) in acc.iter_mut().enumerate() {
+        *chain = [c as u32 + 1; 8];
+    }
+    for i in 0..n {
+        let k = i as u32 | 1;
+        for chain in &mut acc {
+            for x in chain.iter_mut() {
+                *x = x.wrapping_mul(MUL).wrapping_add(k);
+            }
+        }
+    }
+    let mut x = [0u32; 8];
+    for chain in acc {
+        for (x, v) in x.iter_mut().zip(chain) {
+            *x ^= v;
+        }
+    }
+    x.iter().fold(0, |s, &v| s.rotate_left(1) ^ v)
 }
 
 /// One load per 64-byte line of `buf`, summed.
@@ -70,6 +148,7 @@ pub fn measure(threads: usize) -> Ceiling {
     Ceiling {
         threads,
         compute: scaling(threads, 7, &|_| compute(black_box(20_000_000))),
+        vector: scaling(threads, 7, &|_| u64::from(vector(black_box(20_000_000)))),
         stream: scaling(threads, 7, &|t| stream(&bufs[t]) ^ stream(&bufs[t])),
     }
 }
@@ -80,8 +159,9 @@ impl Ceiling {
         format!(
             "this machine's own ceiling for {} threads, measured in the same run (the same \
              work on each thread, nothing shared; best of 7): {:.2}x on an integer loop in \
-             registers, {:.2}x reading a private 64 MiB buffer per thread",
-            self.threads, self.compute, self.stream
+             registers, {:.2}x on vector multiply-adds in registers, {:.2}x reading a private \
+             64 MiB buffer per thread",
+            self.threads, self.compute, self.vector, self.stream
         )
     }
 }
@@ -93,6 +173,8 @@ mod tests {
     #[test]
     fn the_kernels_depend_on_their_input() {
         assert_ne!(compute(1000), compute(1001));
+        assert_ne!(vector(1000), vector(1001));
+        assert_eq!(vector(1000), lanes(1000));
         assert_ne!(stream(&[1; 64]), stream(&[2; 64]));
     }
 
