@@ -93,6 +93,16 @@ fn walk(dense: &[Voxel], grid: &Grid, axis: Axis, mut f: impl FnMut(Option<&Voxe
     }
 }
 
+/// Stores run length `len` as run `*n` of `runs` and counts it. Past the end of the
+/// array (or without one) only the count grows: `encode` reports the size needed.
+#[inline(always)]
+fn put_run(runs: &mut Option<&mut [u8]>, n: &mut usize, len: u8) {
+    if let Some(slot) = runs.as_deref_mut().and_then(|r| r.get_mut(*n)) {
+        *slot = len;
+    }
+    *n += 1;
+}
+
 /// Run-length state machine shared by counting and filling.
 struct RunWriter<'a> {
     runs: Option<&'a mut [u8]>,
@@ -116,14 +126,7 @@ impl<'a> RunWriter<'a> {
         }
     }
     fn emit(&mut self, len: u8) {
-        if let Some(slot) = self
-            .runs
-            .as_deref_mut()
-            .and_then(|r| r.get_mut(self.n_runs))
-        {
-            *slot = len;
-        }
-        self.n_runs += 1;
+        put_run(&mut self.runs, &mut self.n_runs, len);
     }
     fn push(&mut self, v: &Voxel, visible: bool) {
         if visible != self.cur_visible {
@@ -179,13 +182,7 @@ impl<'a> RunWriter<'a> {
             }
             *n_vox += seen;
         });
-        scanline_runs(copied, row.len(), |b| {
-            // Past the end only the count grows; `encode` reports the size needed.
-            if let Some(slot) = runs.as_deref_mut().and_then(|r| r.get_mut(*n_runs)) {
-                *slot = b;
-            }
-            *n_runs += 1;
-        });
+        scanline_runs(copied, row.len(), |b| put_run(runs, n_runs, b));
     }
     fn end_scanline(&mut self) {
         self.flush();
@@ -230,7 +227,7 @@ pub fn scanline_runs(
         // reject, rather than a panic.
         split_run(start.saturating_sub(at), &mut emit);
         split_run(len, &mut emit);
-        at = start + len;
+        at = start.saturating_add(len);
         any = true;
     }
     if at < width || !any {
