@@ -649,16 +649,29 @@ impl<'a> RleSlice<'a> {
 
     /// Calls `f(i, voxel)` for each non-transparent voxel of scanline `j`.
     pub fn for_each_visible(&self, j: usize, mut f: impl FnMut(usize, &Voxel)) {
-        let (runs, voxels) = self.scanline(j);
+        self.for_each_run(j, |i, run| {
+            for (n, v) in run.iter().enumerate() {
+                f(i + n, v);
+            }
+        });
+    }
+
+    /// Calls `f(i, voxels)` for each non-empty run of non-transparent voxels of scanline
+    /// `j`: the run starts at position `i`.
+    #[inline]
+    pub fn for_each_run(&self, j: usize, mut f: impl FnMut(usize, &[Voxel])) {
+        let (runs, mut voxels) = self.scanline(j);
         let mut i = 0;
-        let mut v = 0;
         for pair in runs.chunks_exact(2) {
             i += pair[0] as usize;
-            for _ in 0..pair[1] {
-                f(i, &voxels[v]);
-                i += 1;
-                v += 1;
+            let n = pair[1] as usize;
+            // Within the scanline's voxels: the stream was validated.
+            let (run, rest) = voxels.split_at(n);
+            if n > 0 {
+                f(i, run);
             }
+            voxels = rest;
+            i += n;
         }
     }
 }

@@ -194,18 +194,7 @@ fn visit(src: &RleAxis<'_>, mut f: impl FnMut(usize, usize, usize, &[Voxel])) {
     let [_, nj, nk] = src.axis().permuted_dims(src.dims());
     for (k, slice) in (0..nk).map_while(|k| src.slice(k)).enumerate() {
         for j in 0..nj {
-            let (runs, mut vox) = slice.scanline(j);
-            let mut i = 0;
-            for pair in runs.chunks_exact(2) {
-                i += pair[0] as usize;
-                let n = pair[1] as usize;
-                let (seen, rest) = vox.split_at(n);
-                if n > 0 {
-                    f(i, j, k, seen);
-                }
-                vox = rest;
-                i += n;
-            }
+            slice.for_each_run(j, |i, run| f(i, j, k, run));
         }
     }
 }
