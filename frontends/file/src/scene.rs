@@ -116,10 +116,9 @@ pub fn encode_threads(
 
 /// The run-length copy of `dense` along `axis` as owned arrays (the route of a caller
 /// that keeps a dense classified copy anyway, as the viewer does to re-classify
-/// quickly), for a volume with
-/// `visible` voxels above `threshold` ([`rle::is_visible`]): runs are allocated for the
-/// worst case (`ni + 2` per scanline, zero pages until written) and trimmed, so no
-/// counting pass is needed.
+/// quickly), for a volume with `visible` voxels above `threshold`
+/// ([`rle::is_visible`]): runs are allocated for the worst case (`ni + 2` per scanline,
+/// zero pages until written) and trimmed, so no counting pass is needed.
 pub fn encode_axis(
     dense: &[Voxel],
     grid: &Grid,
