@@ -5,12 +5,12 @@ use crate::scenes::{Loaded, Scene};
 use crate::volpack::{self, VolPack};
 use shearwarp_core::view::Camera;
 use shearwarp_file::isa::Isa;
-use shearwarp_file::scene::{self, Encoded, Renderer};
+use shearwarp_file::scene::{self, Encoded, FrameTimes, Renderer};
 use shearwarp_tests::metrics;
 use shearwarp_tests::reference::{self, RefMode, RefView};
 use std::error::Error;
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// How to run a scene.
 #[derive(Clone, Debug)]
@@ -62,12 +62,54 @@ impl Stats {
     }
 }
 
+/// Where shearwarp's frames went ([`shearwarp_file::scene::FrameTimes`]), ms: for each
+/// field, the median over the views of the phases of each view's best frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Phases {
+    pub setup: f64,
+    pub composite: f64,
+    /// The compositing threads' busy times, summed.
+    pub busy_sum: f64,
+    /// The longest of them.
+    pub busy_max: f64,
+    pub warp: f64,
+}
+
+impl Phases {
+    fn of(t: &FrameTimes) -> Phases {
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        Phases {
+            setup: ms(t.setup),
+            composite: ms(t.composite),
+            busy_sum: t.busy.iter().copied().map(ms).sum(),
+            busy_max: t.busy.iter().copied().map(ms).fold(0.0, f64::max),
+            warp: ms(t.warp),
+        }
+    }
+
+    /// Field by field, the median of `views`.
+    pub fn median(views: &[Phases]) -> Phases {
+        let m = |f: fn(&Phases) -> f64| Stats::of(&views.iter().map(f).collect::<Vec<_>>()).median;
+        Phases {
+            setup: m(|p| p.setup),
+            composite: m(|p| p.composite),
+            busy_sum: m(|p| p.busy_sum),
+            busy_max: m(|p| p.busy_max),
+            warp: m(|p| p.warp),
+        }
+    }
+}
+
 /// Results at one image size.
 #[derive(Clone, Debug, Default)]
 pub struct SizeResult {
     pub size: usize,
     pub sw: Stats,
+    /// The phases of `sw`'s frames.
+    pub sw_phases: Phases,
     pub sw_threads: Option<Stats>,
+    /// The phases of `sw_threads`' frames.
+    pub threads_phases: Option<Phases>,
     /// The baseline (SSE2) build on one thread, when the main runs use a wider one.
     pub sw_base: Option<Stats>,
     /// The threaded and baseline-build images equal the single-threaded ones.
@@ -272,6 +314,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         let n = opts.frames;
         let (mut t1, mut tn, mut tv) = (vec![f64::MAX; n], vec![f64::MAX; n], vec![f64::MAX; n]);
         let mut tb = vec![f64::MAX; n];
+        let (mut p1, mut pn) = (vec![Phases::default(); n], vec![Phases::default(); n]);
         let mut identical = true;
         // Frame 0 once untimed (allocations, page faults), then the timed frames, `rounds`
         // times over. The renderers take turns frame by frame so that load from other
@@ -303,6 +346,12 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
                 msv = v.render(view.0, view.1, size, size, &mut vp_img)?;
             }
             if slot < n {
+                if ms1 < t1[slot] {
+                    p1[slot] = Phases::of(r1.times());
+                }
+                if let Some(r) = rn.as_ref().filter(|_| msn < tn[slot]) {
+                    pn[slot] = Phases::of(r.times());
+                }
                 t1[slot] = t1[slot].min(ms1);
                 tn[slot] = tn[slot].min(msn);
                 tb[slot] = tb[slot].min(msb);
@@ -312,7 +361,9 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         let mut sr = SizeResult {
             size,
             sw: Stats::of(&t1),
+            sw_phases: Phases::median(&p1),
             sw_threads: rn.as_ref().map(|_| Stats::of(&tn)),
+            threads_phases: rn.as_ref().map(|_| Phases::median(&pn)),
             sw_base: rb.as_ref().map(|_| Stats::of(&tb)),
             threads_identical: (rn.is_some() || rb.is_some()).then_some(identical),
             vp: vp.as_ref().map(|_| Stats::of(&tv)),

@@ -162,6 +162,35 @@ fn load_average() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
+/// The machine's CPU time so far from `/proc/stat` (Linux): `(stolen, total)` in clock
+/// ticks over all CPUs, where stolen is what the hypervisor gave to other guests while
+/// this one had work to run.
+fn cpu_ticks() -> Option<(u64, u64)> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let line = stat.lines().find(|l| l.starts_with("cpu "))?;
+    let v: Vec<u64> = line
+        .split_whitespace()
+        .skip(1)
+        .map(|x| x.parse().ok())
+        .collect::<Option<_>>()?;
+    // user nice system idle iowait irq softirq steal [guest guest_nice], the guest
+    // times being counted in user and nice already.
+    let stolen = *v.get(7)?;
+    Some((stolen, v.iter().take(8).sum()))
+}
+
+/// The share of the CPU time between two [`cpu_ticks`] readings that the hypervisor
+/// stole, as a sentence.
+fn stolen(before: Option<(u64, u64)>, after: Option<(u64, u64)>) -> String {
+    match (before, after) {
+        (Some((s0, t0)), Some((s1, t1))) if t1 > t0 => format!(
+            "the hypervisor stole {:.1} % of the CPU time during the run (steal time in /proc/stat)",
+            100.0 * s1.saturating_sub(s0) as f64 / (t1 - t0) as f64
+        ),
+        _ => "steal time unknown (no /proc/stat)".into(),
+    }
+}
+
 /// The machine, as markdown bullet points.
 fn machine() -> String {
     let mut out = String::new();
@@ -314,6 +343,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         wait_idle(cli.wait_idle);
     }
     let load_before = load_average();
+    let ticks_before = cpu_ticks();
     let started = run_output("date", &["-u", "+%Y-%m-%d %H:%M UTC"]).unwrap_or_default();
     let cache = cli
         .cache
@@ -371,6 +401,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         }
     }
     let load_after = load_average();
+    let stolen = stolen(ticks_before, cpu_ticks());
 
     println!(
         "\nScenes (ms/frame: median over {} views of the best of {} rounds; ratios < 1 mean \
@@ -393,10 +424,15 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             }
         }
     }
+    let phases = report::phase_text_table(&main_results);
+    if !phases.is_empty() {
+        println!("\nWhere the frames went (ms; medians over the views):");
+        print!("{phases}");
+    }
     if let Some(c) = &ceiling {
         println!("Threaded columns: read against {}.", c.describe());
     }
-    println!("load average before {load_before}, after {load_after}");
+    println!("load average before {load_before}, after {load_after}; {stolen}");
 
     if let Some(p) = &cli.plot {
         plot::scaling_plot(
@@ -411,7 +447,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         let mut block = String::new();
         let _ = writeln!(
             block,
-            "Measured {started}; load average before {load_before}, after {load_after}.\n"
+            "Measured {started}; load average before {load_before}, after {load_after}; \
+             {stolen}.\n"
         );
         let nice = match niceness() {
             Some(n) if n != 0 => format!("nice -n {n} "),
@@ -447,6 +484,20 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                 "\nRead the threaded columns against {}.",
                 c.describe()
             );
+        }
+        let phases = report::phase_markdown_table(&main_results);
+        if !phases.is_empty() {
+            let _ = writeln!(
+                block,
+                "\n### Where the frames went\n\nms, medians over the views of each view's \
+                 best frame, as the renderer times its phases (`Renderer::times`): the \
+                 serial setup (factorization, shading and opacity tables), the compositing \
+                 phase (wall clock) and the warp. `busy ÷ 1T compositing` is the threads' \
+                 summed busy time over one thread's compositing: the extra CPU time threads \
+                 spend, on more instructions or on slower ones. `waiting` is the compositing \
+                 phase less the longest thread's busy time.\n"
+            );
+            block.push_str(&phases);
         }
         if !scaling.is_empty() {
             let _ = writeln!(block, "\n### Scaling (nested spheres, n³)\n");

@@ -71,12 +71,82 @@ fn rows(results: &[SceneResult]) -> Vec<Vec<String>> {
     out
 }
 
+/// Column headers of the phase table.
+fn phase_headers(threads: Option<usize>) -> Vec<String> {
+    let t = threads.unwrap_or(2);
+    vec![
+        "scene".into(),
+        "image".into(),
+        "1T setup ms".into(),
+        "1T compositing ms".into(),
+        "1T warp ms".into(),
+        format!("{t}T setup ms"),
+        format!("{t}T compositing ms"),
+        format!("{t}T warp ms"),
+        format!("{t}T threads busy, summed ms"),
+        "busy ÷ 1T compositing".into(),
+        format!("{t}T waiting ms"),
+    ]
+}
+
+/// One row per scene and size that ran threaded.
+fn phase_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    for r in results {
+        for s in &r.sizes {
+            let Some(t) = s.threads_phases else { continue };
+            let o = s.sw_phases;
+            let [nx, ny, nz] = r.dims;
+            out.push(vec![
+                format!("{} ({nx}×{ny}×{nz})", r.name),
+                format!("{0}×{0}", s.size),
+                format!("{:.3}", o.setup),
+                format!("{:.2}", o.composite),
+                format!("{:.3}", o.warp),
+                format!("{:.3}", t.setup),
+                format!("{:.2}", t.composite),
+                format!("{:.3}", t.warp),
+                format!("{:.2}", t.busy_sum),
+                opt(ratio(t.busy_sum, Some(o.composite)), 2),
+                format!("{:.3}", (t.composite - t.busy_max).max(0.0)),
+            ]);
+        }
+    }
+    out
+}
+
 /// Plain-text table for the terminal.
 pub fn text_table(results: &[SceneResult]) -> String {
-    let h = headers(results.iter().find_map(|r| r.threads));
-    let rows = rows(results);
+    let threads = results.iter().find_map(|r| r.threads);
+    text(&headers(threads), &rows(results))
+}
+
+/// Plain-text phase table for the terminal (empty when nothing ran threaded).
+pub fn phase_text_table(results: &[SceneResult]) -> String {
+    phase_table(results, text)
+}
+
+/// Markdown phase table (empty when nothing ran threaded).
+pub fn phase_markdown_table(results: &[SceneResult]) -> String {
+    phase_table(results, markdown)
+}
+
+/// The phase table in `format` (empty when nothing ran threaded).
+fn phase_table(results: &[SceneResult], format: fn(&[String], &[Vec<String>]) -> String) -> String {
+    let rows = phase_rows(results);
+    if rows.is_empty() {
+        return String::new();
+    }
+    format(
+        &phase_headers(results.iter().find_map(|r| r.threads)),
+        &rows,
+    )
+}
+
+/// Columns padded to their widest cell; the first two left-aligned.
+fn text(h: &[String], rows: &[Vec<String>]) -> String {
     let mut widths: Vec<usize> = h.iter().map(|c| c.chars().count()).collect();
-    for r in &rows {
+    for r in rows {
         for (w, c) in widths.iter_mut().zip(r) {
             *w = (*w).max(c.chars().count());
         }
@@ -93,9 +163,9 @@ pub fn text_table(results: &[SceneResult]) -> String {
         }
         s.trim_end().to_string()
     };
-    let mut out = line(&h);
+    let mut out = line(h);
     out.push('\n');
-    for r in &rows {
+    for r in rows {
         out.push_str(&line(r));
         out.push('\n');
     }
@@ -104,13 +174,18 @@ pub fn text_table(results: &[SceneResult]) -> String {
 
 /// Markdown table.
 pub fn markdown_table(results: &[SceneResult]) -> String {
-    let h = headers(results.iter().find_map(|r| r.threads));
+    let threads = results.iter().find_map(|r| r.threads);
+    markdown(&headers(threads), &rows(results))
+}
+
+/// A markdown table; the first two columns left-aligned, the others right.
+fn markdown(h: &[String], rows: &[Vec<String>]) -> String {
     let mut out = format!("| {} |\n", h.join(" | "));
     let align: Vec<&str> = (0..h.len())
         .map(|i| if i < 2 { "---" } else { "---:" })
         .collect();
     let _ = writeln!(out, "|{}|", align.join("|"));
-    for r in rows(results) {
+    for r in rows {
         let _ = writeln!(out, "| {} |", r.join(" | "));
     }
     out
@@ -139,7 +214,7 @@ pub fn splice(existing: &str, block: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::{SizeResult, Stats};
+    use crate::bench::{Phases, SizeResult, Stats};
 
     fn sample() -> Vec<SceneResult> {
         vec![SceneResult {
@@ -154,7 +229,21 @@ mod tests {
             sizes: vec![SizeResult {
                 size: 256,
                 sw: Stats { median: 1.0 },
+                sw_phases: Phases {
+                    setup: 0.05,
+                    composite: 0.8,
+                    busy_sum: 0.8,
+                    busy_max: 0.8,
+                    warp: 0.1,
+                },
                 sw_threads: Some(Stats { median: 0.5 }),
+                threads_phases: Some(Phases {
+                    setup: 0.05,
+                    composite: 0.5,
+                    busy_sum: 0.88,
+                    busy_max: 0.46,
+                    warp: 0.06,
+                }),
                 sw_base: Some(Stats { median: 2.0 }),
                 threads_identical: Some(true),
                 vp: Some(Stats { median: 4.0 }),
@@ -172,6 +261,18 @@ mod tests {
         let m = markdown_table(&sample());
         assert_eq!(m.lines().count(), 3);
         assert!(m.contains("| s (2×3×4) | 256×256 | 10.0 | 40.0 | 0.25 | 1.00 | 0.50 | 2.00 | 4.00 | 0.25 | 2.00 | 0.50 | 40.0 | – |"), "{m}");
+    }
+
+    #[test]
+    fn the_phase_table_shows_extra_cpu_time_and_waiting() {
+        let m = phase_markdown_table(&sample());
+        assert!(
+            m.contains("| s (2×3×4) | 256×256 | 0.050 | 0.80 | 0.100 | 0.050 | 0.50 | 0.060 | 0.88 | 1.10 | 0.040 |"),
+            "{m}"
+        );
+        let mut one = sample();
+        one[0].sizes[0].threads_phases = None;
+        assert_eq!(phase_text_table(&one), "");
     }
 
     #[test]

@@ -9,7 +9,7 @@ use shearwarp_core::{postclass, swv};
 use shearwarp_file::anim;
 use shearwarp_file::isa::Isa;
 use shearwarp_file::presets;
-use shearwarp_file::scene::{self, Classification, Encoded, Look, Renderer};
+use shearwarp_file::scene::{self, Classification, Encoded, FrameTimes, Look, Renderer};
 use shearwarp_file::tffile::{Resolved, TfFileError, TfSpec};
 use shearwarp_file::tfspec;
 use shearwarp_file::volume::{self, RawVolume, Voxels};
@@ -1044,13 +1044,16 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             // One output buffer for every frame, as a viewer keeps its window's and as
             // `shearwarp-bench` times it, so that the allocator is not part of the figure.
             let mut frame = Vec::new();
+            let mut phases = Vec::with_capacity(frames);
             let times = time_turntable(frames, p.camera, out, |_, cam| {
                 let t = Instant::now();
                 r.render_into(&mut src, cam, &p.look, &mut frame)?;
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 std::hint::black_box(&frame);
+                phases.push(r.times().clone());
                 Ok(ms)
             })?;
+            let phase = PhaseMedians::of(&phases);
             if out.json {
                 println!(
                     "{}",
@@ -1066,6 +1069,12 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                         "median_ms": times[frames / 2],
                         "min_ms": times[0],
                         "preprocess_ms": preprocess,
+                        "phase_medians_ms": {
+                            "setup": phase.setup,
+                            "composite": phase.composite,
+                            "busy": phase.busy,
+                            "warp": phase.warp,
+                        },
                     })
                 );
             } else {
@@ -1089,10 +1098,49 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     times[0],
                     preprocess
                 ));
+                let busy: Vec<String> = phase.busy.iter().map(|b| format!("{b:.2}")).collect();
+                out.text(format_args!(
+                    "phase medians: setup_ms={:.3} composite_ms={:.2} busy_ms={} warp_ms={:.3}",
+                    phase.setup,
+                    phase.composite,
+                    busy.join(","),
+                    phase.warp
+                ));
             }
         }
     }
     Ok(())
+}
+
+/// Medians over frames of each phase of [`Renderer::times`], ms (`busy` per thread).
+struct PhaseMedians {
+    setup: f64,
+    composite: f64,
+    busy: Vec<f64>,
+    warp: f64,
+}
+
+impl PhaseMedians {
+    fn of(frames: &[FrameTimes]) -> Self {
+        let median = |f: &dyn Fn(&FrameTimes) -> Option<Duration>| {
+            let mut v: Vec<f64> = frames
+                .iter()
+                .filter_map(f)
+                .map(|d| d.as_secs_f64() * 1e3)
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        };
+        let threads = frames.iter().map(|t| t.busy.len()).max().unwrap_or(0);
+        PhaseMedians {
+            setup: median(&|t| Some(t.setup)),
+            composite: median(&|t| Some(t.composite)),
+            busy: (0..threads)
+                .map(|i| median(&|t| t.busy.get(i).copied()))
+                .collect(),
+            warp: median(&|t| Some(t.warp)),
+        }
+    }
 }
 
 /// `bench`'s timing loop: `frames` views turned 360/frames degrees apart about Y, each

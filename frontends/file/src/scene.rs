@@ -382,6 +382,10 @@ type Start<'a> = (
     &'a mut [[u32; 2]],
 );
 
+/// What a compositing thread has to itself: its row buffer, its handle on the source
+/// and its busy time ([`FrameTimes::busy`]).
+type Own<'a, S> = (&'a mut Vec<Rgba>, S, &'a mut Duration);
+
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
 ///
 /// The threads of a frame finish within a fraction of a millisecond of each other (a
@@ -448,6 +452,30 @@ fn on_threads<T: Send>(
     }
 }
 
+/// Where the last frame's time went, wall clock, as [`Renderer::times`] reports it.
+///
+/// With one thread `composite` and the one `busy` entry are the same span. With more,
+/// the gap between them says what the threads lost beside the work itself: summed
+/// `busy` over one thread's `composite` is the extra time threads spend on the same
+/// work (more instructions, or slower ones), and `composite` minus the longest `busy`
+/// is waiting (a thread starting late, or asking for part of another's band).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameTimes {
+    /// Serial work before the compositing: the view's factorization, the shading and
+    /// opacity tables, the buffers' sizes.
+    pub setup: Duration,
+    /// The compositing phase, from the bands being handed out to the last one finished
+    /// (each thread's scan of its bands' extents included).
+    pub composite: Duration,
+    /// Each compositing thread's busy time, the calling thread first: the time it spent
+    /// compositing its bands and scanning their extents, not its waits for a band to
+    /// take over.
+    pub busy: Vec<Duration>,
+    /// The warp into the output image ([`Renderer::render_into`] only; zero after
+    /// [`Renderer::composite`] alone).
+    pub warp: Duration,
+}
+
 /// Heap-allocated workspace sized for one volume, reused across frames, rendering with
 /// a configurable number of threads.
 ///
@@ -484,6 +512,8 @@ pub struct Renderer {
     pool: Option<rayon::ThreadPool>,
     /// The instruction-set build of the compositing loop ([`Isa::detect`] by default).
     isa: Isa,
+    /// The last frame's phases.
+    times: FrameTimes,
 }
 
 impl Renderer {
@@ -527,6 +557,10 @@ impl Renderer {
             fov: None,
             pool,
             isa: Isa::detect(),
+            times: FrameTimes {
+                busy: vec![Duration::ZERO; threads],
+                ..FrameTimes::default()
+            },
         }
     }
 
@@ -564,6 +598,11 @@ impl Renderer {
         self.threads
     }
 
+    /// Where the last frame's time went. Measuring costs a few clock reads a frame.
+    pub fn times(&self) -> &FrameTimes {
+        &self.times
+    }
+
     /// Renders one frame of `source`; returns RGBA8 pixels, row-major.
     pub fn render<S: SliceSource + Clone + Send>(
         &mut self,
@@ -587,7 +626,10 @@ impl Renderer {
         out: &mut Vec<[u8; 4]>,
     ) -> Result<(), Error> {
         let frame = self.composite(source, camera, look)?;
-        self.warp_into(&frame.view, out)
+        let start = Instant::now();
+        self.warp_into(&frame.view, out)?;
+        self.times.warp = start.elapsed();
+        Ok(())
     }
 
     /// Composites every slice of `source` into the held intermediate image and returns
@@ -617,6 +659,8 @@ impl Renderer {
         look: &Look,
         keep_going: &(dyn Fn() -> bool + Sync),
     ) -> Result<Option<Frame>, Error> {
+        let start = Instant::now();
+        self.times.warp = Duration::ZERO;
         // A parked worker takes 0.06–0.17 ms to start a job here, which the calling
         // thread would spend compositing alone. Waking it now, with an empty job, lets
         // that overlap the frame's serial setup (factorization, shading table). Measured
@@ -668,6 +712,8 @@ impl Renderer {
                 r.resize(need_row, [0; 4]);
             }
         }
+        let posted = Instant::now();
+        self.times.setup = posted - start;
         let pool = match &self.pool {
             Some(p) if frame.shadow.is_none() && self.rows.len() > 1 => p,
             _ => {
@@ -703,6 +749,9 @@ impl Renderer {
                     warp::extents(img.pixels(), iw, &mut self.extents[..ih])?;
                     self.extents_of = Some([iw, ih]);
                 }
+                self.times.composite = posted.elapsed();
+                self.times.busy.clear();
+                self.times.busy.push(self.times.composite);
                 return Ok(done.then_some(frame));
             }
         };
@@ -734,10 +783,11 @@ impl Renderer {
         );
         let stopped = AtomicBool::new(false);
         let isa = self.isa;
-        // One worker per row buffer, each with its own handle on the source and its
-        // starting band.
+        // One worker per row buffer, each with its own handle on the source, its busy
+        // time and its starting band.
         let work =
-            |(t, (rows, mut src), start): (usize, (&mut Vec<Rgba>, S), _)| -> Result<(), Error> {
+            |(t, (rows, mut src, busy), start): (usize, Own<'_, S>, _)| -> Result<(), Error> {
+                *busy = Duration::ZERO;
                 let (row0, here, p, l, e): Start<'_> = start;
                 let _retire = Retire {
                     sharing: &sharing,
@@ -761,7 +811,8 @@ impl Renderer {
                             abandon = !keep_going();
                             !abandon
                         };
-                        p.next = isa::composite_band_until(
+                        let began = Instant::now();
+                        let reached = isa::composite_band_until(
                             isa,
                             &mut src,
                             &frame,
@@ -771,7 +822,9 @@ impl Renderer {
                             None,
                             p.next..nk,
                             go,
-                        )?;
+                        );
+                        *busy += began.elapsed();
+                        p.next = reached?;
                         if abandon {
                             // The frame holds no extents: none to scan.
                             stopped.store(true, Ordering::Relaxed);
@@ -781,17 +834,22 @@ impl Renderer {
                             sharing.serve(t, &mut p)?;
                         }
                     }
+                    let began = Instant::now();
                     warp::extents(p.img.pixels(), iw, p.extents)?;
+                    *busy += began.elapsed();
                     sharing.retire(t);
                     piece = sharing.steal(t)?;
                 }
                 Ok(())
             };
+        self.times.busy.resize(threads, Duration::ZERO);
+        let own = self.rows.iter_mut().zip(self.times.busy.iter_mut());
         let each = (0..threads)
-            .zip(self.rows.iter_mut().map(|rows| (rows, source.clone())))
+            .zip(own.map(|(rows, busy)| (rows, source.clone(), busy)))
             .zip(starts)
             .map(|((t, r), s)| (t, r, s));
         on_threads(pool, each, work, PANICKED)?;
+        self.times.composite = posted.elapsed();
         let done = !stopped.load(Ordering::Relaxed);
         self.extents_of = done.then_some([iw, ih]);
         Ok(done.then_some(frame))
@@ -1205,8 +1263,8 @@ mod tests {
 
     /// The extents the compositing threads leave are a scan of the finished image, for
     /// every band split; an abandoned frame leaves none, and the warp scans instead.
-    #[test]
-    fn held_extents_equal_a_scan_of_the_composited_image() {
+    /// An off-centre ball, 37×30×26, encoded, and an unlit look.
+    fn ball() -> (Encoded, Look) {
         let dims = [37usize, 30, 26];
         let mut v = Vec::new();
         for z in 0..dims[2] {
@@ -1240,6 +1298,12 @@ mod tests {
             depth_cue: None,
             shadows: false,
         };
+        (enc, look)
+    }
+
+    #[test]
+    fn held_extents_equal_a_scan_of_the_composited_image() {
+        let (enc, look) = ball();
         for threads in [1, 2, 3] {
             let mut r = Renderer::with_threads(&enc.grid, threads);
             for (rx, ry) in [(10.0, 20.0), (-40.0, 75.0), (80.0, -5.0)] {
@@ -1277,6 +1341,33 @@ mod tests {
                 .unwrap()
                 .is_none());
             assert_eq!(r.extents_of, None, "threads {threads}");
+        }
+    }
+
+    /// The phase times cover what they say: one busy entry per thread, each inside the
+    /// compositing phase; the warp counted by `render_into` only.
+    #[test]
+    fn frame_times_have_a_busy_span_per_thread_inside_the_compositing() {
+        let (enc, look) = ball();
+        let cam = Camera {
+            rotate_x: 10.0,
+            rotate_y: 20.0,
+            width: 70,
+            height: 60,
+        };
+        let mut out = Vec::new();
+        for threads in [1, 2, 3] {
+            let mut r = Renderer::with_threads(&enc.grid, threads);
+            let mut src = enc.volume().unwrap();
+            r.render_into(&mut src, &cam, &look, &mut out).unwrap();
+            let t = r.times().clone();
+            assert_eq!(t.busy.len(), threads);
+            let inside = |b: &Duration| Duration::ZERO < *b && *b <= t.composite;
+            assert!(t.busy.iter().all(inside), "{t:?}");
+            assert!(t.warp > Duration::ZERO, "{t:?}");
+            r.composite(&mut src, &cam, &look).unwrap();
+            assert_eq!(r.times().warp, Duration::ZERO);
+            assert_eq!(r.times().busy.len(), threads);
         }
     }
 

@@ -390,12 +390,23 @@ fn json_and_quiet_output() {
         "32x32",
         "--frames",
         "3",
+        "--threads",
+        "2",
         "--json",
     ]);
     assert_eq!(code, 0, "{err}");
     let j: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(j["frames"], 3);
     assert!(j["median_ms"].as_f64().unwrap() >= j["min_ms"].as_f64().unwrap());
+    // The phases: one busy time per thread, none longer than the compositing phase.
+    let phases = &j["phase_medians_ms"];
+    let busy = phases["busy"].as_array().unwrap();
+    assert_eq!(busy.len(), 2, "{phases}");
+    let composite = phases["composite"].as_f64().unwrap();
+    assert!(
+        busy.iter().all(|b| b.as_f64().unwrap() <= composite),
+        "{phases}"
+    );
     let (code, out, _) = shearwarp(&["info", &head64(), "--json"]);
     assert_eq!(code, 0);
     let j: serde_json::Value = serde_json::from_str(&out).unwrap();
