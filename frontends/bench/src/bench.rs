@@ -3,13 +3,15 @@
 
 use crate::scenes::{Loaded, Scene};
 use crate::volpack::{self, VolPack};
+use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::Camera;
 use shearwarp_file::isa::Isa;
-use shearwarp_file::scene::{self, Encoded, FrameTimes, Renderer};
+use shearwarp_file::scene::{self, Encoded, FrameTimes, Look, Renderer};
 use shearwarp_tests::metrics;
 use shearwarp_tests::reference::{self, RefMode, RefView};
 use std::error::Error;
 use std::path::PathBuf;
+use std::sync::Barrier;
 use std::time::{Duration, Instant};
 
 /// How to run a scene.
@@ -100,6 +102,41 @@ impl Phases {
     }
 }
 
+/// Renders `cam` with every renderer of `side` at once, each on a thread of its own (the
+/// calling thread the first) into its own image, and returns the slowest one's time, ms.
+/// The renderers share nothing they write: this is how fast a frame renders while the
+/// other cores render frames of their own, what the host allows threads of this work
+/// before they share anything.
+fn side_by_side<S: SliceSource + Clone + Send + Sync>(
+    side: &mut [(Renderer, Vec<[u8; 4]>)],
+    src: &S,
+    cam: &Camera,
+    look: &Look,
+) -> Result<f64, shearwarp_core::Error> {
+    let start = Barrier::new(side.len());
+    let render = |(r, img): &mut (Renderer, Vec<[u8; 4]>)| {
+        let mut src = src.clone();
+        start.wait();
+        let t = Instant::now();
+        r.render_into(&mut src, cam, look, img)
+            .map(|()| t.elapsed().as_secs_f64() * 1e3)
+    };
+    let Some((first, others)) = side.split_first_mut() else {
+        return Ok(0.0);
+    };
+    std::thread::scope(|s| {
+        let handles: Vec<_> = others.iter_mut().map(|o| s.spawn(|| render(o))).collect();
+        let mut slowest = render(first)?;
+        for h in handles {
+            let ms = h.join().map_err(|_| shearwarp_core::Error::Source {
+                reason: "a side-by-side render panicked",
+            })??;
+            slowest = slowest.max(ms);
+        }
+        Ok(slowest)
+    })
+}
+
 /// Results at one image size.
 #[derive(Clone, Debug, Default)]
 pub struct SizeResult {
@@ -110,6 +147,8 @@ pub struct SizeResult {
     pub sw_threads: Option<Stats>,
     /// The phases of `sw_threads`' frames.
     pub threads_phases: Option<Phases>,
+    /// One-thread frames rendered side by side, one per thread ([`side_by_side`]).
+    pub side_by_side: Option<Stats>,
     /// The baseline (SSE2) build on one thread, when the main runs use a wider one.
     pub sw_base: Option<Stats>,
     /// The threaded and baseline-build images equal the single-threaded ones.
@@ -314,6 +353,10 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         let n = opts.frames;
         let (mut t1, mut tn, mut tv) = (vec![f64::MAX; n], vec![f64::MAX; n], vec![f64::MAX; n]);
         let mut tb = vec![f64::MAX; n];
+        let mut side: Vec<_> = (0..opts.threads.unwrap_or(0))
+            .map(|_| (renderer(1, opts.isa), Vec::new()))
+            .collect();
+        let mut ts = vec![f64::MAX; n];
         let (mut p1, mut pn) = (vec![Phases::default(); n], vec![Phases::default(); n]);
         let mut identical = true;
         // Frame 0 once untimed (allocations, page faults), then the timed frames, `rounds`
@@ -341,6 +384,11 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             };
             let msn = checked(rn.as_mut(), &mut imgn)?;
             let msb = checked(rb.as_mut(), &mut imgb)?;
+            let mss = if side.is_empty() {
+                f64::MAX
+            } else {
+                side_by_side(&mut side, &src, &cam, &look)?
+            };
             let mut msv = f64::MAX;
             if let Some(v) = vp.as_mut() {
                 msv = v.render(view.0, view.1, size, size, &mut vp_img)?;
@@ -355,6 +403,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
                 t1[slot] = t1[slot].min(ms1);
                 tn[slot] = tn[slot].min(msn);
                 tb[slot] = tb[slot].min(msb);
+                ts[slot] = ts[slot].min(mss);
                 tv[slot] = tv[slot].min(msv);
             }
         }
@@ -364,6 +413,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             sw_phases: Phases::median(&p1),
             sw_threads: rn.as_ref().map(|_| Stats::of(&tn)),
             threads_phases: rn.as_ref().map(|_| Phases::median(&pn)),
+            side_by_side: (!side.is_empty()).then(|| Stats::of(&ts)),
             sw_base: rb.as_ref().map(|_| Stats::of(&tb)),
             threads_identical: (rn.is_some() || rb.is_some()).then_some(identical),
             vp: vp.as_ref().map(|_| Stats::of(&tv)),

@@ -495,7 +495,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                  phase (wall clock) and the warp. `busy ÷ 1T compositing` is the threads' \
                  summed busy time over one thread's compositing: the extra CPU time threads \
                  spend, on more instructions or on slower ones. `waiting` is the compositing \
-                 phase less the longest thread's busy time.\n"
+                 phase less the longest thread's busy time. The last two columns render \
+                 one-thread frames on every thread at once, each with its own renderer and \
+                 nothing written in common: the time of the slowest, and how many frames \
+                 a second that gives against one thread alone, the most threads can gain \
+                 on this host for this work before they share anything.\n"
             );
             block.push_str(&phases);
         }

@@ -86,6 +86,8 @@ fn phase_headers(threads: Option<usize>) -> Vec<String> {
         format!("{t}T threads busy, summed ms"),
         "busy ÷ 1T compositing".into(),
         format!("{t}T waiting ms"),
+        format!("{t} 1T frames side by side ms"),
+        "their throughput ×".into(),
     ]
 }
 
@@ -93,6 +95,7 @@ fn phase_headers(threads: Option<usize>) -> Vec<String> {
 fn phase_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
     let mut out = Vec::new();
     for r in results {
+        let threads = r.threads.unwrap_or(2);
         for s in &r.sizes {
             let Some(t) = s.threads_phases else { continue };
             let o = s.sw_phases;
@@ -109,6 +112,12 @@ fn phase_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
                 format!("{:.2}", t.busy_sum),
                 opt(ratio(t.busy_sum, Some(o.composite)), 2),
                 format!("{:.3}", (t.composite - t.busy_max).max(0.0)),
+                opt(s.side_by_side.map(|x| x.median), 2),
+                opt(
+                    s.side_by_side
+                        .and_then(|x| ratio(threads as f64 * s.sw.median, Some(x.median))),
+                    2,
+                ),
             ]);
         }
     }
@@ -244,6 +253,7 @@ mod tests {
                     busy_max: 0.46,
                     warp: 0.06,
                 }),
+                side_by_side: Some(Stats { median: 1.25 }),
                 sw_base: Some(Stats { median: 2.0 }),
                 threads_identical: Some(true),
                 vp: Some(Stats { median: 4.0 }),
@@ -267,7 +277,7 @@ mod tests {
     fn the_phase_table_shows_extra_cpu_time_and_waiting() {
         let m = phase_markdown_table(&sample());
         assert!(
-            m.contains("| s (2×3×4) | 256×256 | 0.050 | 0.80 | 0.100 | 0.050 | 0.50 | 0.060 | 0.88 | 1.10 | 0.040 |"),
+            m.contains("| s (2×3×4) | 256×256 | 0.050 | 0.80 | 0.100 | 0.050 | 0.50 | 0.060 | 0.88 | 1.10 | 0.040 | 1.25 | 1.60 |"),
             "{m}"
         );
         let mut one = sample();
