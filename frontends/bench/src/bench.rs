@@ -1,5 +1,6 @@
-//! Running one scene: preprocessing and frame timings for shearwarp (1 and 2 threads) and
-//! VolPack, and PSNR of each against the reference ray caster.
+//! Running one scene: preprocessing and frame timings for shearwarp (1 and 2 threads, and
+//! one-thread frames side by side on every thread) and VolPack, and PSNR of each against
+//! the reference ray caster.
 
 use crate::scenes::{Loaded, Scene};
 use crate::volpack::{self, VolPack};
@@ -151,7 +152,7 @@ pub struct SizeResult {
     pub side_by_side: Option<Stats>,
     /// The baseline (SSE2) build on one thread, when the main runs use a wider one.
     pub sw_base: Option<Stats>,
-    /// The threaded and baseline-build images equal the single-threaded ones.
+    /// The threaded, side-by-side and baseline-build images equal the single-threaded ones.
     pub threads_identical: Option<bool>,
     pub vp: Option<Stats>,
     pub psnr_sw: Option<f64>,
@@ -387,7 +388,9 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             let mss = if side.is_empty() {
                 f64::MAX
             } else {
-                side_by_side(&mut side, &src, &cam, &look)?
+                let ms = side_by_side(&mut side, &src, &cam, &look)?;
+                identical &= side.iter().all(|(_, img)| *img == img1);
+                ms
             };
             let mut msv = f64::MAX;
             if let Some(v) = vp.as_mut() {

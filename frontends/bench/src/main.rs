@@ -417,7 +417,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         for s in &r.sizes {
             if s.threads_identical == Some(false) {
                 println!(
-                    "WARNING: {} at {}: threaded or baseline-build image differs from \
+                    "WARNING: {} at {}: threaded, side-by-side or baseline-build image differs from \
                      single-threaded",
                     r.name, s.size
                 );
