@@ -461,8 +461,8 @@ fn on_threads<T: Send>(
 /// is waiting (a thread starting late, or asking for part of another's band).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FrameTimes {
-    /// Serial work before the compositing: the view's factorization, the shading and
-    /// opacity tables, the buffers' sizes.
+    /// Serial work before the compositing: waking the other threads, the view's
+    /// factorization, the shading and opacity tables, the buffers' sizes.
     pub setup: Duration,
     /// The compositing phase, from the bands being handed out to the last one finished
     /// (each thread's scan of its bands' extents included).
