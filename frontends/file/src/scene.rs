@@ -557,10 +557,7 @@ impl Renderer {
             fov: None,
             pool,
             isa: Isa::detect(),
-            times: FrameTimes {
-                busy: vec![Duration::ZERO; threads],
-                ..FrameTimes::default()
-            },
+            times: FrameTimes::default(),
         }
     }
 
@@ -1261,8 +1258,6 @@ impl PostRenderer {
 mod tests {
     use super::*;
 
-    /// The extents the compositing threads leave are a scan of the finished image, for
-    /// every band split; an abandoned frame leaves none, and the warp scans instead.
     /// An off-centre ball, 37×30×26, encoded, and an unlit look.
     fn ball() -> (Encoded, Look) {
         let dims = [37usize, 30, 26];
@@ -1301,6 +1296,8 @@ mod tests {
         (enc, look)
     }
 
+    /// The extents the compositing threads leave are a scan of the finished image, for
+    /// every band split; an abandoned frame leaves none, and the warp scans instead.
     #[test]
     fn held_extents_equal_a_scan_of_the_composited_image() {
         let (enc, look) = ball();
