@@ -210,14 +210,18 @@ impl<'a> Intermediate<'a> {
             .unwrap_or_default()
     }
 
-    /// Pixels and opaque-pixel bitmap of held scanline `r` (relative to the band).
+    /// Pixels and opaque-pixel bitmap of held scanline `r` (relative to the band), or
+    /// two empty slices past the band.
     #[cfg_attr(target_arch = "x86_64", inline(always))]
     pub(crate) fn scanline_mut(&mut self, r: usize) -> (&mut [Rgba], &mut [opaque::Word]) {
-        let w = self.width;
-        (
-            &mut self.pixels[r * w..(r + 1) * w],
-            &mut self.opaque[r * self.stride..(r + 1) * self.stride],
-        )
+        let (w, s) = (self.width, self.stride);
+        match (
+            self.pixels.get_mut(r * w..(r + 1) * w),
+            self.opaque.get_mut(r * s..(r + 1) * s),
+        ) {
+            (Some(p), Some(o)) => (p, o),
+            _ => (&mut [], &mut []),
+        }
     }
 
     /// Applies the per-pixel depth-cue factor to every held scanline.
@@ -307,7 +311,8 @@ impl<'b> Row<'b> {
     /// The two row buffers for slices `ni` wide (`rows` holds at least
     /// [`row_buffer_len`]`(ni)` entries), cleared unless `clean` says they already are.
     fn pair(rows: &'b mut [Rgba], ni: usize, clean: bool) -> (Row<'b>, Row<'b>) {
-        let (r0, r1) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
+        let rows = rows.get_mut(..row_buffer_len(ni)).unwrap_or_default();
+        let (r0, r1) = rows.split_at_mut_checked(ni + 2).unwrap_or_default();
         let all = if clean { (0, 0) } else { (0, ni + 2) };
         let mut top = Row {
             buf: r0,
@@ -330,6 +335,7 @@ impl<'b> Row<'b> {
 
     pub(crate) fn clear(&mut self) {
         let (a, b) = self.dirty;
+        let b = b.min(self.buf.len());
         if a < b {
             self.buf[a..b].fill([0; 4]);
         }
@@ -367,8 +373,15 @@ impl<'b> Row<'b> {
                 None => {
                     lo = lo.min(a + 1);
                     hi = b + 1;
-                    let src = &voxels[base..base + (b - a)];
-                    shade_run(&mut self.buf[a + 1..b + 1], src, a, t, scale, j, shadow, k);
+                    // Both in bounds for a validated slice and a buffer of
+                    // `row_buffer_len` entries; a run past them is not shaded.
+                    let (Some(dst), Some(src)) = (
+                        self.buf.get_mut(a + 1..b + 1),
+                        voxels.get(base..base + (b - a)),
+                    ) else {
+                        continue;
+                    };
+                    shade_run(dst, src, a, t, scale, j, shadow, k);
                 }
                 Some(n) => {
                     // Shade only the voxels that open pixels of the reading scanlines
@@ -394,8 +407,13 @@ impl<'b> Row<'b> {
                             // zero, and zero taps leave a pixel as it is.
                             lo = lo.min(c + 1);
                             hi = d + 1;
-                            let src = &voxels[base + (c - a)..base + (d - a)];
-                            shade_run(&mut self.buf[c + 1..d + 1], src, c, t, scale, j, shadow, k);
+                            let (Some(dst), Some(src)) = (
+                                self.buf.get_mut(c + 1..d + 1),
+                                voxels.get(base + (c - a)..base + (d - a)),
+                            ) else {
+                                continue;
+                            };
+                            shade_run(dst, src, c, t, scale, j, shadow, k);
                         }
                     }
                 }
@@ -433,11 +451,8 @@ impl<'a> Needed<'a> {
                 img.opaque.get(s..s + 2 * stride)
             })
             .flatten();
-        let lines = match both {
-            Some(two) => {
-                let (a, b) = two.split_at(stride);
-                [Some(a), Some(b)]
-            }
+        let lines = match both.and_then(|two| two.split_at_checked(stride)) {
+            Some((a, b)) => [Some(a), Some(b)],
             None => {
                 let at = |r: u64| (r < rows).then(|| img.opaque_line(r as usize));
                 [at(r), at(r.wrapping_add(1))]
@@ -1179,7 +1194,10 @@ fn composite_pixel(
     w: [u32; 4],
     t: &SliceTables<'_>,
 ) -> bool {
-    let (tl, tr, bl_, br) = (top[bl], top[bl + 1], bot[bl], bot[bl + 1]);
+    // Entries past a buffer read as transparent (they are never asked for: the
+    // compositors keep `bl + 1` inside the row buffers).
+    let at = |r: &[Rgba], i: usize| r.get(i).copied().unwrap_or_default();
+    let (tl, tr, bl_, br) = (at(top, bl), at(top, bl + 1), at(bot, bl), at(bot, bl + 1));
     let mut s = [0u32; 4];
     for c in 0..4 {
         s[c] = (w[0] * tl[c] as u32
@@ -1233,10 +1251,11 @@ fn composite_span(
         return over_span(pixels, opaque, taps, us, t.ert, kern);
     }
     // MIP: no pixel ever becomes opaque.
-    for u in us {
+    let first = us.start;
+    for (u, p) in pixels.iter_mut().enumerate().take(us.end).skip(first) {
         // Buffer index of the left voxel: (u − n − 1) + 1.
         let bl = (u as i64 - taps.n as i64) as usize;
-        composite_pixel(&mut pixels[u], taps.top, taps.bot, bl, taps.w, t);
+        composite_pixel(p, taps.top, taps.bot, bl, taps.w, t);
     }
 }
 
@@ -1262,13 +1281,16 @@ fn over_span(
         // Pixels u..e read buffer entries u − n ..= e − n of both rows.
         let bl = (u as i64 - taps.n as i64) as usize;
         let m = e - u;
-        let px = &mut pixels[u..e];
-        let highest = kern.over_run(
-            px,
-            &taps.top[bl..bl + m + 1],
-            &taps.bot[bl..bl + m + 1],
-            taps.w,
-        );
+        // In bounds: the compositors place the span inside the scanline and the taps
+        // inside the row buffers.
+        let (Some(px), Some(top), Some(bot)) = (
+            pixels.get_mut(u..e),
+            taps.top.get(bl..bl + m + 1),
+            taps.bot.get(bl..bl + m + 1),
+        ) else {
+            return;
+        };
+        let highest = kern.over_run(px, top, bot, taps.w);
         // A pixel still at zero opacity was never composited, so it is not marked even
         // when the threshold is zero (as in the per-pixel kernel). Most runs have no
         // pixel that reached it, and the run's highest opacity says so without a look

@@ -139,11 +139,13 @@ struct AxisMap {
 
 impl AxisMap {
     fn new(scale: f64, origin: f64) -> Self {
-        let w = libm::round(P1 as f64 / scale) as i64;
+        // At least one Q16 unit: a scale beyond 2^17 (or not a number) would round the
+        // footprint to nothing, and [`AxisMap::pixels_of`] divides by it.
+        let w = (libm::round(P1 as f64 / scale) as i64).max(1);
         AxisMap {
             w,
             a: libm::round(origin / scale * P1 as f64) as i64,
-            recip: (1i64 << 31) / w.max(1),
+            recip: (1i64 << 31) / w,
         }
     }
 
@@ -177,9 +179,11 @@ impl AxisMap {
 
     /// Pixels whose footprint overlaps voxels `a..b`: `[lo, hi)` before clamping.
     fn pixels_of(&self, a: usize, b: usize) -> (i64, i64) {
-        let left = a as i64 * P1 - P1 / 2 - self.w / 2 + self.a;
-        let right = b as i64 * P1 - P1 / 2 + self.w / 2 + self.a;
-        (left.div_euclid(self.w) + 1, right.div_euclid(self.w) + 1)
+        // `w >= 1` from `new`; the `max` shows the compiler the divisor is not zero.
+        let w = self.w.max(1);
+        let left = a as i64 * P1 - P1 / 2 - w / 2 + self.a;
+        let right = b as i64 * P1 - P1 / 2 + w / 2 + self.a;
+        (left.div_euclid(w) + 1, right.div_euclid(w) + 1)
     }
 }
 
@@ -210,7 +214,8 @@ pub(crate) fn composite_slice(
             reason: "perspective compositing needs a perspective view",
         });
     };
-    let ring = ring_len(view);
+    // At least 3 rows in a perspective view; `max` lets the compiler see it is not zero.
+    let ring = ring_len(view).max(1);
     let width = img.width();
     need("perspective row buffer", row_buffer_len(view), rows.len())?;
     if width != view.intermediate[0] {
@@ -223,9 +228,14 @@ pub(crate) fn composite_slice(
             reason: "perspective compositing needs the per-ray opacity tables",
         });
     }
-    let (voxel_row, ring_buf) = rows.split_at_mut(ni + 2);
+    let too_small = Error::BufferTooSmall {
+        what: "perspective row buffer",
+        needed: row_buffer_len(view),
+        got: rows.len(),
+    };
+    let (voxel_row, ring_buf) = rows.split_at_mut_checked(ni + 2).ok_or(too_small)?;
     let mut row = Row::new(voxel_row, clean);
-    let ring_buf = &mut ring_buf[..ring * width];
+    let ring_buf = ring_buf.get_mut(..ring * width).ok_or(too_small)?;
     if !clean {
         ring_buf.fill([0; 4]);
     }
@@ -255,17 +265,19 @@ pub(crate) fn composite_slice(
         let mut hi = 0;
         let mut under = [(0usize, 0u32); MAX_TAPS];
         let mut n_under = 0;
-        for (t, &w) in wy[..count].iter().enumerate() {
+        for (t, &w) in wy.iter().take(count).enumerate() {
             let j = j0 + t as i64;
             if j < 0 || j >= nj as i64 || w == 0 {
                 continue;
             }
             let s = j.rem_euclid(ring as i64) as usize;
             if slots[s].j != j {
-                let out = &mut ring_buf[s * width..(s + 1) * width];
-                let (a, b) = (slots[s].lo, slots[s].hi);
-                if a < b {
-                    out[a..b].fill([0; 4]);
+                // The ring holds `ring` rows of `width` pixels and `s < ring`.
+                let Some(out) = ring_buf.get_mut(s * width..(s + 1) * width) else {
+                    continue;
+                };
+                if let Some(old) = out.get_mut(slots[s].lo..slots[s].hi) {
+                    old.fill([0; 4]);
                 }
                 let (runs, voxels) = slice.scanline(j as usize);
                 row.fill(
@@ -300,10 +312,12 @@ pub(crate) fn composite_slice(
             }
             lo = lo.min(slots[s].lo);
             hi = hi.max(slots[s].hi);
-            under[n_under] = (s * width, w);
-            n_under += 1;
+            if let Some(slot) = under.get_mut(n_under) {
+                *slot = (s * width, w);
+                n_under += 1;
+            }
         }
-        let under = &under[..n_under];
+        let under = under.get(..n_under).unwrap_or_default();
         if lo >= hi {
             continue;
         }
@@ -317,13 +331,16 @@ pub(crate) fn composite_slice(
             }
             let mut s = [0u32; 4];
             for &(base, w) in under {
-                let h = ring_buf[base + u];
+                // Inside the ring: `u < hi <= width` and `base` starts one of its rows.
+                let h = ring_buf.get(base + u).copied().unwrap_or_default();
                 for c in 0..4 {
                     s[c] += w * h[c] as u32;
                 }
             }
             let mut s = s.map(|x| ((x + (1 << 14)) >> 15).min(ONE));
-            let p = &mut pixels[u];
+            let Some(p) = pixels.get_mut(u) else {
+                break;
+            };
             match tables.mode {
                 Mode::Composite => {
                     if s[3] != 0 {
@@ -350,8 +367,8 @@ pub(crate) fn composite_slice(
     }
     row.clear();
     for (s, slot) in slots.iter().enumerate().take(ring) {
-        if slot.lo < slot.hi {
-            ring_buf[s * width + slot.lo..s * width + slot.hi].fill([0; 4]);
+        if let Some(used) = ring_buf.get_mut(s * width + slot.lo..s * width + slot.hi) {
+            used.fill([0; 4]);
         }
     }
     Ok(())
@@ -406,17 +423,20 @@ fn filter_row(
             }
             let (first, n) = xs.taps(u, wx);
             let mut acc = [0u32; 4];
-            for (t, &w) in wx[..n].iter().enumerate() {
+            for (t, &w) in wx.iter().take(n).enumerate() {
                 let i = first + t as i64;
                 if w == 0 || i < 0 || i >= ni as i64 {
                     continue;
                 }
-                let px = row.buf[i as usize + 1];
+                // Entry i + 1 < ni + 2, the row buffer's length.
+                let px = row.buf.get(i as usize + 1).copied().unwrap_or_default();
                 for c in 0..4 {
                     acc[c] += w * px[c] as u32;
                 }
             }
-            out[u as usize] = acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16);
+            if let Some(o) = out.get_mut(u as usize) {
+                *o = acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16);
+            }
         }
         slot.lo = slot.lo.min(ua as usize);
         slot.hi = ub as usize;

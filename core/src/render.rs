@@ -217,7 +217,10 @@ impl Frame {
                 shadow = Some(ShadowFrame::new(&view, grid, first.direction)?);
                 // Split: ambient and the other lights here, the first light alone in shade0.
                 let mut rest = l.clone();
-                rest.lights.remove(0);
+                rest.lights = heapless::Vec::from_slice(l.lights.get(1..).unwrap_or_default())
+                    .map_err(|()| Error::BadParameter {
+                        reason: "too many lights",
+                    })?;
                 shade.fill(&rest, &view.rotation)?;
                 let mut only = l.clone();
                 only.ka = 0.0;
@@ -487,8 +490,15 @@ fn band<S: SliceSource>(
                     k,
                     #[cfg_attr(target_arch = "x86_64", inline(always))]
                     |slice| {
+                        let Some(lit) = alpha.get(..w * h) else {
+                            return Err(Error::BufferTooSmall {
+                                what: "shadow buffer",
+                                needed: w * h,
+                                got: alpha.len(),
+                            });
+                        };
                         let look = ShadowLookup {
-                            alpha: &alpha[..w * h],
+                            alpha: lit,
                             width: w,
                             height: h,
                             off: sf.slice_offset(k),

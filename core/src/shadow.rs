@@ -85,11 +85,13 @@ pub struct ShadowLookup<'b> {
 }
 
 impl ShadowLookup<'_> {
+    /// The buffer's opacity at `(x, y)`, zero outside it.
     fn at(&self, x: i64, y: i64) -> u32 {
         if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
             0
         } else {
-            self.alpha[y as usize * self.width + x as usize] as u32
+            let a = self.alpha.get(y as usize * self.width + x as usize);
+            a.map_or(0, |&a| a as u32)
         }
     }
 
@@ -125,7 +127,9 @@ fn fill_alpha(
     row.fill(0);
     let mut v = 0;
     for (a, b) in Spans::new(runs) {
-        for (o, vox) in row[a + 1..b + 1].iter_mut().zip(&voxels[v..v + (b - a)]) {
+        // In bounds for a validated slice and a row of `ni + 2` entries.
+        let dst = row.get_mut(a + 1..b + 1).unwrap_or_default();
+        for (o, vox) in dst.iter_mut().zip(voxels.get(v..).unwrap_or_default()) {
             *o = opacity[vox.opacity as usize];
         }
         v += b - a;
@@ -147,7 +151,8 @@ pub fn accumulate_slice(
     need("shadow rows", row_buffer_len(ni), rows.len())?;
     let [ou, ov] = frame.slice_offset(k);
     let wt = fixed::bilinear_weights(ou.f, ov.f);
-    let (mut top, mut bot) = rows[..row_buffer_len(ni)].split_at_mut(ni + 2);
+    let rows = rows.get_mut(..row_buffer_len(ni)).unwrap_or_default();
+    let (mut top, mut bot) = rows.split_at_mut_checked(ni + 2).unwrap_or_default();
     let empty: (&[u8], &[crate::classify::Voxel]) = (&[], &[]);
     let row_of = |j: i64| {
         if j >= 0 && (j as usize) < nj {
@@ -164,7 +169,9 @@ pub fn accumulate_slice(
         fill_alpha(bot, next.0, next.1, &frame.opacity);
         let q = jt + ov.n as i64 + 1;
         if q >= 0 && (q as usize) < h {
-            let line = &mut alpha[q as usize * w..(q as usize + 1) * w];
+            let line = alpha
+                .get_mut(q as usize * w..(q as usize + 1) * w)
+                .unwrap_or_default();
             let spans = MergedSpans {
                 a: Spans::new(top_runs).peekable(),
                 b: Spans::new(next.0).peekable(),
@@ -174,10 +181,12 @@ pub fn accumulate_slice(
                 let pb = (b as i64 + ou.n as i64).clamp(0, w as i64) as usize;
                 for (p, px) in line.iter_mut().enumerate().take(pb).skip(pa) {
                     let bl = (p as i64 - ou.n as i64) as usize;
-                    let s = (wt[0] * top[bl] as u32
-                        + wt[1] * top[bl + 1] as u32
-                        + wt[2] * bot[bl] as u32
-                        + wt[3] * bot[bl + 1] as u32
+                    // Entries past the rows (never read: `p < pb`) count as clear.
+                    let at = |r: &[u16], i: usize| r.get(i).map_or(0, |&a| a as u32);
+                    let s = (wt[0] * at(top, bl)
+                        + wt[1] * at(top, bl + 1)
+                        + wt[2] * at(bot, bl)
+                        + wt[3] * at(bot, bl + 1)
                         + (1 << 14))
                         >> 15;
                     let a0 = *px as u32;

@@ -165,11 +165,27 @@ impl Header {
     }
 }
 
+/// The `N` bytes at offset `o` of `b`. The callers read fixed offsets of fixed-size
+/// buffers, always inside them; past the end would read zeros rather than panic.
+fn bytes_at<const N: usize>(b: &[u8], o: usize) -> [u8; N] {
+    let bytes = b.get(o..).and_then(|b| b.first_chunk::<N>());
+    bytes.copied().unwrap_or([0; N])
+}
 fn u16_at(b: &[u8], o: usize) -> u16 {
-    u16::from_le_bytes([b[o], b[o + 1]])
+    u16::from_le_bytes(bytes_at(b, o))
 }
 fn u32_at(b: &[u8], o: usize) -> u32 {
-    u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]])
+    u32::from_le_bytes(bytes_at(b, o))
+}
+
+/// Copies as many bytes as both slices hold and returns how many: a `copy_from_slice`
+/// without its panic on unequal lengths.
+fn copy_bytes(dst: &mut [u8], src: &[u8]) -> usize {
+    let n = dst.len().min(src.len());
+    for (d, s) in dst.iter_mut().zip(src) {
+        *d = *s;
+    }
+    n
 }
 fn f32_at(b: &[u8], o: usize) -> f32 {
     f32::from_bits(u32_at(b, o))
@@ -210,8 +226,8 @@ impl HeaderParser {
     /// Consumes as many of `bytes` as the header needs; returns how many were taken.
     /// Checks the magic as soon as it is complete, so a wrong file fails fast.
     pub fn feed(&mut self, bytes: &[u8]) -> Result<usize, Error> {
-        let n = bytes.len().min(self.needed());
-        self.buf[self.len..self.len + n].copy_from_slice(&bytes[..n]);
+        // The free end of the buffer is `needed()` bytes long.
+        let n = copy_bytes(self.buf.get_mut(self.len..).unwrap_or_default(), bytes);
         let before = self.len;
         self.len += n;
         if before < 8 && self.len >= 8 && self.buf[..8] != MAGIC {
@@ -398,64 +414,67 @@ impl<'b> RecordParser<'b> {
     pub fn feed(&mut self, mut bytes: &[u8]) -> usize {
         let total = bytes.len();
         while !bytes.is_empty() && self.remaining() > 0 {
+            // `new` checked that the buffers hold the record's counts, so every `get`
+            // below finds its range; had one not, taking nothing ends the loop instead
+            // of spinning, and `finish` reports the record short.
+            let taken;
             if self.got_scans < self.n_scans {
-                let take = (8 - self.pending_len).min(bytes.len());
-                self.pending[self.pending_len..self.pending_len + take]
-                    .copy_from_slice(&bytes[..take]);
-                self.crc.update(&bytes[..take]);
-                self.pending_len += take;
-                bytes = &bytes[take..];
+                let pending = self.pending.get_mut(self.pending_len..8);
+                taken = copy_bytes(pending.unwrap_or_default(), bytes);
+                self.pending_len += taken;
                 if self.pending_len == 8 {
-                    self.scans[self.got_scans] = ScanIndex {
-                        run: u32_at(&self.pending, 0),
-                        voxel: u32_at(&self.pending, 4),
-                    };
+                    if let Some(s) = self.scans.get_mut(self.got_scans) {
+                        *s = ScanIndex {
+                            run: u32_at(&self.pending, 0),
+                            voxel: u32_at(&self.pending, 4),
+                        };
+                    }
                     self.got_scans += 1;
                     self.pending_len = 0;
                 }
             } else if self.got_runs < self.n_runs {
-                let take = (self.n_runs - self.got_runs).min(bytes.len());
-                self.runs[self.got_runs..self.got_runs + take].copy_from_slice(&bytes[..take]);
-                self.crc.update(&bytes[..take]);
-                self.got_runs += take;
-                bytes = &bytes[take..];
-            } else {
-                // Whole voxels straight from the input, a partial one through `pending`.
-                if self.pending_len == 0 {
-                    let whole = (bytes.len() / 4).min(self.n_voxels - self.got_voxels);
-                    let (body, rest) = bytes.split_at(4 * whole);
-                    self.crc.update(body);
-                    let dst = &mut self.voxels[self.got_voxels..self.got_voxels + whole];
-                    for (v, c) in dst.iter_mut().zip(body.chunks_exact(4)) {
+                let runs = self.runs.get_mut(self.got_runs..self.n_runs);
+                taken = copy_bytes(runs.unwrap_or_default(), bytes);
+                self.got_runs += taken;
+            } else if self.pending_len == 0 && bytes.len() >= 4 {
+                // Whole voxels straight from the input.
+                let dst = self.voxels.get_mut(self.got_voxels..self.n_voxels);
+                let dst = dst.unwrap_or_default();
+                let whole = (bytes.len() / 4).min(dst.len());
+                for (v, c) in dst.iter_mut().zip(bytes.chunks_exact(4)) {
+                    if let &[opacity, scalar, n0, n1] = c {
                         *v = Voxel {
-                            opacity: c[0],
-                            scalar: c[1],
-                            normal: u16::from_le_bytes([c[2], c[3]]),
+                            opacity,
+                            scalar,
+                            normal: u16::from_le_bytes([n0, n1]),
                         };
                     }
-                    self.got_voxels += whole;
-                    bytes = rest;
-                    if bytes.is_empty() || self.got_voxels == self.n_voxels {
-                        continue;
-                    }
                 }
-                let take = (4 - self.pending_len).min(bytes.len());
-                self.pending[self.pending_len..self.pending_len + take]
-                    .copy_from_slice(&bytes[..take]);
-                self.crc.update(&bytes[..take]);
-                self.pending_len += take;
-                bytes = &bytes[take..];
+                self.got_voxels += whole;
+                taken = 4 * whole;
+            } else {
+                // A voxel split between two inputs, through `pending`.
+                let pending = self.pending.get_mut(self.pending_len..4);
+                taken = copy_bytes(pending.unwrap_or_default(), bytes);
+                self.pending_len += taken;
                 if self.pending_len == 4 {
-                    let c = self.pending;
-                    self.voxels[self.got_voxels] = Voxel {
-                        opacity: c[0],
-                        scalar: c[1],
-                        normal: u16::from_le_bytes([c[2], c[3]]),
-                    };
+                    let [opacity, scalar, n0, n1] = bytes_at(&self.pending, 0);
+                    if let Some(v) = self.voxels.get_mut(self.got_voxels) {
+                        *v = Voxel {
+                            opacity,
+                            scalar,
+                            normal: u16::from_le_bytes([n0, n1]),
+                        };
+                    }
                     self.got_voxels += 1;
                     self.pending_len = 0;
                 }
             }
+            let Some((used, rest)) = bytes.split_at_checked(taken).filter(|_| taken > 0) else {
+                break;
+            };
+            self.crc.update(used);
+            bytes = rest;
         }
         total - bytes.len()
     }
@@ -624,11 +643,12 @@ pub fn read_slice<'b, R: Read + Seek>(
     let chunk = chunk.clamp(1, CHUNK);
     while parser.remaining() > 0 {
         let want = parser.remaining().min(chunk);
-        let n = reader.read(&mut buf[..want])?;
-        if n == 0 || n > want {
-            return Err(Error::Io(IoError::UnexpectedEof));
-        }
-        parser.feed(&buf[..n]);
+        let got = buf.get_mut(..want).unwrap_or_default();
+        let n = reader.read(got)?;
+        match got.get(..n) {
+            Some(read) if n > 0 => parser.feed(read),
+            _ => return Err(Error::Io(IoError::UnexpectedEof)),
+        };
     }
     parser.finish(ni, nj, entry.crc)
 }

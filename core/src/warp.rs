@@ -543,7 +543,13 @@ fn warp_generic<T: Texel>(
         let q = |x: f64| libm::round(x.clamp(-1.0e9, 1.0e9) * (1u64 << PFRAC) as f64) as i64;
         let step = [q(m[0][0]), q(m[1][0]), q(m[2][0])];
         for (i, y) in rows.enumerate() {
-            let row = &mut row[i % strip * w..][..w];
+            // Inside `row`: `strip` rows of `w` fit in it.
+            let row = row.get_mut(i % strip * w..).and_then(|r| r.get_mut(..w));
+            let row = row.ok_or(Error::BufferTooSmall {
+                what: "warp row",
+                needed: w,
+                got: 0,
+            })?;
             let yc = y as f64 + 0.5;
             let at = |r: usize| q(m[r][0] * 0.5 + m[r][1] * yc + m[r][2]);
             let mut num = [at(0), at(1), at(2)];
@@ -582,11 +588,14 @@ fn warp_generic<T: Texel>(
             let (xa, xb) = reach(u, du, v, dv, [-one, iw * one], [-one, ih * one], w);
             let (xi, xj) = reach(u, du, v, dv, [0, (iw - 1) * one], [0, (ih - 1) * one], w);
             let (xi, xj) = if xi < xj { (xi, xj) } else { (xb, xb) };
-            out[..xa].fill(zero);
-            out[xb..].fill(zero);
+            // xa <= xi <= xj <= xb <= w: every range lies in the row.
+            out.get_mut(..xa).unwrap_or_default().fill(zero);
+            out.get_mut(xb..).unwrap_or_default().fill(zero);
             for x in (xa..xi).chain(xj..xb) {
                 let (pu, pv) = (u + x as i64 * du, v + x as i64 * dv);
-                out[x] = sample(px, iw, ih, pu, pv, zero);
+                if let Some(o) = out.get_mut(x) {
+                    *o = sample(px, iw, ih, pu, pv, zero);
+                }
             }
             *plan = (u, v, xi, xj);
         }

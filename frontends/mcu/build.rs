@@ -8,6 +8,13 @@ fn main() {
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-env-changed=SHEARWARP_SWV");
+    // `panics.sh` links the plain panic handler, to list the calls the linker check of
+    // `src/main.rs` refuses.
+    println!("cargo:rustc-check-cfg=cfg(list_panics)");
+    println!("cargo:rerun-if-env-changed=SHEARWARP_LIST_PANICS");
+    if std::env::var_os("SHEARWARP_LIST_PANICS").is_some() {
+        println!("cargo:rustc-cfg=list_panics");
+    }
     match std::env::var("SHEARWARP_SWV") {
         Ok(p) => println!("cargo:rerun-if-changed={p}"),
         Err(_) => panic!(
