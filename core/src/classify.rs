@@ -195,7 +195,10 @@ fn check_positions(xs: impl Iterator<Item = f64>) -> Result<(), Error> {
 /// Evaluates a piecewise-linear function given as sorted `(x, y)` breakpoints; constant
 /// beyond the end points.
 fn eval<const N: usize>(points: &[(f64, [f64; N])], x: f64) -> [f64; N] {
-    let first = points[0];
+    // Never empty: the transfer functions refuse fewer than one point.
+    let (Some(&first), Some(&last)) = (points.first(), points.last()) else {
+        return [0.0; N];
+    };
     if x <= first.0 {
         return first.1;
     }
@@ -211,7 +214,7 @@ fn eval<const N: usize>(points: &[(f64, [f64; N])], x: f64) -> [f64; N] {
             return out;
         }
     }
-    points[points.len() - 1].1
+    last.1
 }
 
 /// Piecewise-linear opacity transfer function: `(scalar value, opacity per unit of the
@@ -463,12 +466,19 @@ impl Kernel<'_> {
             for y in 0..ny {
                 let row = z * sz + y * sy;
                 let at = row - slices.start * sz;
-                let dst = &mut out[at..at + nx];
+                // Inside `out`, which holds the slices (checked by the caller).
+                let Some(dst) = out.get_mut(at..at + nx) else {
+                    return;
+                };
                 // y and z are fixed along the row: their differences are interior or not
                 // for the whole row; x is interior except at the two ends.
-                if nx >= 3 && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz {
+                let around = d.get(row.wrapping_sub(sz)..row + sz + nx);
+                if let (true, Some(around)) = (
+                    nx >= 3 && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz,
+                    around,
+                ) {
                     self.voxel(d, 0, y, z, dst);
-                    self.inner_row(&d[row - sz..row + sz + nx], sz, sy, nx, dst);
+                    self.inner_row(around, sz, sy, nx, dst);
                     self.voxel(d, nx - 1, y, z, dst);
                 } else {
                     for x in 0..nx {
@@ -484,7 +494,9 @@ impl Kernel<'_> {
     /// both have the same scale.
     fn voxel<T: Copy + Into<i32>>(&self, d: &[T], x: usize, y: usize, z: usize, dst: &mut [Voxel]) {
         let [nx, ny, nz] = self.dims;
-        let at = |i: usize| -> i64 { d[i].into() as i64 };
+        // Every index below lies in the volume (the differences are one-sided at the
+        // faces).
+        let at = |i: usize| -> i64 { d.get(i).map_or(0, |&v| v.into() as i64) };
         let diff = |idx: usize, c: usize, len: usize, st: usize| -> i64 {
             if len == 1 {
                 0
@@ -499,8 +511,11 @@ impl Kernel<'_> {
         let idx = (z * ny + y) * nx + x;
         let v = at(idx);
         let alpha = self.table_alpha(v);
+        let Some(o) = dst.get_mut(x) else {
+            return;
+        };
         if let Some(dropped) = self.dropped(v, alpha) {
-            dst[x] = dropped;
+            *o = dropped;
             return;
         }
         let g = [
@@ -508,7 +523,7 @@ impl Kernel<'_> {
             diff(idx, y, ny, nx) * self.w[1],
             diff(idx, z, nz, nx * ny) * self.w[2],
         ];
-        dst[x] = self.record(v, alpha, g);
+        *o = self.record(v, alpha, g);
     }
 
     /// Voxels `1..nx − 1` of a row whose neighbours exist on every axis; `src` starts
@@ -522,20 +537,36 @@ impl Kernel<'_> {
         nx: usize,
         dst: &mut [Voxel],
     ) {
-        let c = sz; // the row's start within `src`
-        let at = |i: usize| -> i64 { src[i].into() as i64 };
-        for (x, o) in dst.iter_mut().enumerate().take(nx - 1).skip(1) {
-            let i = c + x;
-            let v = at(i);
+        // The row and its four neighbours, each `nx` long: slicing them once lets the
+        // loop read them without a bounds check per voxel.
+        let row = |start: usize| src.get(start..).and_then(|r| r.get(..nx));
+        let rows = [row(sz), row(sz - sy), row(sz + sy), row(0), row(2 * sz)];
+        let [Some(c), Some(ym), Some(yp), Some(zm), Some(zp)] = rows else {
+            return;
+        };
+        let at = |t: &T| -> i64 { (*t).into() as i64 };
+        fn tail<T>(r: &[T]) -> &[T] {
+            r.get(1..).unwrap_or_default()
+        }
+        let inner = dst.get_mut(1..nx - 1).unwrap_or_default();
+        let neighbours = tail(ym)
+            .iter()
+            .zip(tail(yp))
+            .zip(tail(zm).iter().zip(tail(zp)));
+        for ((o, x), ((ym, yp), (zm, zp))) in inner.iter_mut().zip(c.windows(3)).zip(neighbours) {
+            let &[left, mid, right] = x else {
+                continue;
+            };
+            let v = at(&mid);
             let alpha = self.table_alpha(v);
             if let Some(dropped) = self.dropped(v, alpha) {
                 *o = dropped;
                 continue;
             }
             let g = [
-                (at(i + 1) - at(i - 1)) * self.w[0],
-                (at(i + sy) - at(i - sy)) * self.w[1],
-                (at(i + sz) - at(i - sz)) * self.w[2],
+                (at(&right) - at(&left)) * self.w[0],
+                (at(yp) - at(ym)) * self.w[1],
+                (at(zp) - at(zm)) * self.w[2],
             ];
             *o = self.record(v, alpha, g);
         }

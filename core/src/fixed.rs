@@ -51,20 +51,11 @@ pub const fn bilinear_weights(fu: u32, fv: u32) -> [u32; 4] {
     [tl, top - tl, bl, bottom - bl]
 }
 
-/// Integer square root (floor) of a `u64`, for gradient magnitudes.
+/// Integer square root (floor) of a `u64`, for gradient magnitudes: the standard
+/// library's, which has no division that could fail (the Newton iteration this was
+/// divided by its estimate, which the compiler could not prove non-zero).
 pub const fn isqrt(n: u64) -> u64 {
-    if n < 2 {
-        return n;
-    }
-    // Newton iteration from a power of two above the root; monotone decreasing.
-    let mut x = 1u64 << ((64 - n.leading_zeros()).div_ceil(2));
-    loop {
-        let y = (x + n / x) / 2;
-        if y >= x {
-            return x;
-        }
-        x = y;
-    }
+    n.isqrt()
 }
 
 #[cfg(test)]

@@ -82,8 +82,9 @@ pub fn downsample<T: Sample>(
     need("level max", count, max.len())?;
     let spacing = [0, 1, 2].map(|a| grid.spacing[a] * if n[a] == 1 { 1.0 } else { 2.0 });
     let level = Grid::new(m, spacing)?.as_level_of(grid);
-    let src = &src[..grid.voxel_count()];
-    let mut o = 0;
+    // The level's voxels in order, each with its three outputs (`need` checked that
+    // each holds `count`).
+    let mut outs = mean.iter_mut().zip(min.iter_mut()).zip(max.iter_mut());
     for z in 0..m[2] {
         let tz = taps(z, n[2]);
         for y in 0..m[1] {
@@ -95,19 +96,22 @@ pub fn downsample<T: Sample>(
                 let mut hi = 0u32;
                 for &(k, wz) in tz.iter().filter(|t| t.1 > 0) {
                     for &(j, wy) in ty.iter().filter(|t| t.1 > 0) {
-                        let row = &src[(k * n[1] + j) * n[0]..][..n[0]];
+                        // Taps lie inside the volume (`taps` clamps them to each side).
+                        let row = src.get((k * n[1] + j) * n[0]..).unwrap_or_default();
                         for &(i, wx) in tx.iter().filter(|t| t.1 > 0) {
-                            let v = row[i].widen();
+                            let v = row.get(i).map_or(0, |v| v.widen());
                             sum += (wz * wy * wx) as u64 * v as u64;
                             lo = lo.min(v);
                             hi = hi.max(v);
                         }
                     }
                 }
-                mean[o] = T::narrow(((sum + 32) / 64) as u32);
-                min[o] = T::narrow(lo);
-                max[o] = T::narrow(hi);
-                o += 1;
+                let Some(((mean, min), max)) = outs.next() else {
+                    return Ok(level);
+                };
+                *mean = T::narrow(((sum + 32) / 64) as u32);
+                *min = T::narrow(lo);
+                *max = T::narrow(hi);
             }
         }
     }

@@ -10,6 +10,8 @@
 //! Encoding is pure integer arithmetic (it runs per voxel); decoding runs once per code
 //! per frame when the shading table is built.
 
+use core::num::{NonZeroU32, NonZeroU64};
+
 /// Number of grid cells per side of the rotated octahedral square.
 pub const GRID: i64 = 64;
 /// Number of codes for non-zero gradients.
@@ -22,20 +24,25 @@ pub const CODES: usize = DIRECTIONS + 1;
 /// Encodes an integer gradient (any common scale) into a normal code.
 #[inline]
 pub fn encode(gx: i64, gy: i64, gz: i64) -> u16 {
+    // Only the direction counts: a gradient of 2^40 or more is scaled below it, so that
+    // nothing below can overflow (the classifier's gradients are far smaller).
+    let big = gx.unsigned_abs() | gy.unsigned_abs() | gz.unsigned_abs();
+    let shift = (u64::BITS - big.leading_zeros()).saturating_sub(40);
+    let (gx, gy, gz) = (gx >> shift, gy >> shift, gz >> shift);
     let l1 = gx.abs() + gy.abs() + gz.abs();
-    if l1 == 0 {
+    let Some(d) = NonZeroU64::new(l1 as u64) else {
         return ZERO_GRADIENT;
-    }
+    };
     let half = GRID / 2;
     // a = (gx - gy)/l1 and b = (gx + gy)/l1 are in [-1, 1]; map to cells 0..GRID-1. The
     // numerators are in [0, 2·half·l1], so the quotient is a plain unsigned division,
-    // done in 32 bits when it fits (the same result, much cheaper than 64-bit).
+    // done in 32 bits when it fits (the same result, much cheaper than 64-bit). Divisors
+    // typed non-zero divide without a check.
     let (na, nb) = (half * (gx - gy + l1), half * (gx + gy + l1));
-    let (a, b) = if l1 < 1 << 25 {
-        let d = l1 as u32;
-        ((na as u32 / d) as i64, (nb as u32 / d) as i64)
-    } else {
-        (na.div_euclid(l1), nb.div_euclid(l1))
+    let d32 = NonZeroU32::new(l1 as u32).filter(|_| l1 < 1 << 25);
+    let (a, b) = match d32 {
+        Some(d) => ((na as u32 / d) as i64, (nb as u32 / d) as i64),
+        None => ((na as u64 / d) as i64, (nb as u64 / d) as i64),
     };
     let (a, b) = (a.clamp(0, GRID - 1), b.clamp(0, GRID - 1));
     let neg = (gz < 0) as i64;
@@ -138,6 +145,21 @@ mod tests {
                 ),
                 antipode(code)
             );
+        }
+    }
+
+    /// Any i64 gradient encodes (no overflow, no division by zero, also with overflow
+    /// checks on), and a huge one as the same direction scaled down.
+    #[test]
+    fn extreme_gradients_encode_as_their_direction() {
+        let (min, max) = (i64::MIN, i64::MAX);
+        assert_eq!(encode(min, 0, 0), encode(-1, 0, 0));
+        assert_eq!(encode(0, max, 0), encode(0, 1, 0));
+        assert_eq!(encode(max, max, min), encode(1, 1, -1));
+        assert_eq!(encode(min, min, min), encode(-1, -1, -1));
+        assert_eq!(encode(1 << 41, -(1 << 41), 1 << 40), encode(4, -4, 2));
+        for g in [[min, max, 0], [max, 1, -1], [1 << 45, 3, min / 7]] {
+            assert!((encode(g[0], g[1], g[2]) as usize) < DIRECTIONS, "{g:?}");
         }
     }
 

@@ -71,13 +71,17 @@ pub fn build_bricks(grid: &Grid, voxels: &[Voxel], out: &mut [(u8, u8)]) -> Resu
                 for z in z0..z1 {
                     for y in y0..y1 {
                         let row = (z * d[1] + y) * d[0];
-                        for v in &voxels[row + x0..row + x1] {
+                        // Inside the volume (`need` checked `voxels`).
+                        let line = voxels.get(row + x0..row + x1).unwrap_or_default();
+                        for v in line {
                             lo = lo.min(v.scalar);
                             hi = hi.max(v.scalar);
                         }
                     }
                 }
-                out[(bz * nb[1] + by) * nb[0] + bx] = (lo, hi);
+                if let Some(o) = out.get_mut((bz * nb[1] + by) * nb[0] + bx) {
+                    *o = (lo, hi);
+                }
             }
         }
     }
@@ -176,7 +180,8 @@ pub fn build_preintegration(
             for t in 0..SUBSTEPS {
                 // Sample at the sub-step midpoint, rounded to the nearest table entry.
                 let num = f * (2 * SUBSTEPS - 2 * t - 1) + b * (2 * t + 1);
-                let s = ((num + SUBSTEPS) / (2 * SUBSTEPS)) as usize;
+                // At most 255 (front and back are); `min` shows it to the compiler.
+                let s = (((num + SUBSTEPS) / (2 * SUBSTEPS)) as usize).min(255);
                 let a = a_sub[s];
                 if a == 0 {
                     continue;
@@ -206,10 +211,13 @@ impl Dense<'_> {
     /// to the faces of the outer voxels' unit cells, as in the reference).
     #[inline(always)]
     fn at(&self, i: i64, j: i64, k: usize) -> Option<&Voxel> {
-        let i = i.clamp(0, self.n[0] as i64 - 1) as usize;
-        let j = j.clamp(0, self.n[1] as i64 - 1) as usize;
+        // `max` then `min` rather than `clamp`, which panics on an empty range (a grid
+        // has no empty side, but the compiler does not know that).
+        let i = i.max(0).min(self.n[0] as i64 - 1) as usize;
+        let j = j.max(0).min(self.n[1] as i64 - 1) as usize;
+        let k = k.min(self.n[2].saturating_sub(1));
         self.voxels
-            .get(i * self.stride[0] + j * self.stride[1] + k.min(self.n[2] - 1) * self.stride[2])
+            .get(i * self.stride[0] + j * self.stride[1] + k * self.stride[2])
     }
 }
 
@@ -360,7 +368,12 @@ pub fn render(
             let bj = (((jt + 1).max(0) as usize) / BRICK).min(nb[1] - 1);
             let brow = bk * bstride[2] + bj * bstride[1];
             for bi in 0..nb[0] {
-                if !ws.visible[brow + bi * bstride[0]] {
+                if !ws
+                    .visible
+                    .get(brow + bi * bstride[0])
+                    .copied()
+                    .unwrap_or(false)
+                {
                     continue;
                 }
                 // Pixels whose right voxel (u − n − 1 + 1) falls in this brick; the last
@@ -388,7 +401,9 @@ pub fn render(
                         continue;
                     }
                     let f = sample(&vol, ws.shade, il, jt, kf, &wf);
-                    let px = &mut pixels[u];
+                    let Some(px) = pixels.get_mut(u) else {
+                        break;
+                    };
                     let (rgb, a) = match settings.mode {
                         PostMode::PostClassified => {
                             let a = lerp_table(&corr, f.s);
@@ -402,7 +417,7 @@ pub fn render(
                             let b = sample(&vol, ws.shade, ilb, jb, kb, &wb);
                             let fi = ((f.s + 128) >> 8).min(255) as usize;
                             let bi_ = ((b.s + 128) >> 8).min(255) as usize;
-                            let e = ws.preint[fi * 256 + bi_];
+                            let e = ws.preint.get(fi * 256 + bi_).copied().unwrap_or_default();
                             let a = e[3] as u32;
                             let rgb = [0, 1, 2].map(|ch| {
                                 let d = (f.d[ch] + b.d[ch]) / 2;

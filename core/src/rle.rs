@@ -75,6 +75,13 @@ pub struct AxisSizes {
     pub scans: usize,
 }
 
+/// A transparent voxel.
+const CLEAR: Voxel = Voxel {
+    opacity: 0,
+    scalar: 0,
+    normal: crate::normal::ZERO_GRADIENT,
+};
+
 /// Walks the dense volume along the permuted scanlines of `axis`, calling `f(Some(voxel))`
 /// per voxel and `f(None)` at each scanline end.
 fn walk(dense: &[Voxel], grid: &Grid, axis: Axis, mut f: impl FnMut(Option<&Voxel>)) {
@@ -86,7 +93,9 @@ fn walk(dense: &[Voxel], grid: &Grid, axis: Axis, mut f: impl FnMut(Option<&Voxe
         for j in 0..nj {
             let base = k * sk + j * sj;
             for i in 0..ni {
-                f(Some(&dense[base + i * si]));
+                // Inside `dense` (its length is checked against the grid first); a voxel
+                // past it would be encoded as transparent.
+                f(Some(dense.get(base + i * si).unwrap_or(&CLEAR)));
             }
             f(None);
         }
@@ -166,11 +175,11 @@ impl<'a> RunWriter<'a> {
             ..
         } = self;
         let copied = visible_spans(row, threshold).inspect(|&(i, seen)| {
-            if let Some(dst) = voxels
+            let dst = voxels
                 .as_deref_mut()
-                .and_then(|o| o.get_mut(*n_vox..*n_vox + seen))
-            {
-                let src = &row[i..i + seen];
+                .and_then(|o| o.get_mut(*n_vox..*n_vox + seen));
+            // Both `seen` long: the span lies in the row.
+            if let (Some(dst), Some(src)) = (dst, row.get(i..i + seen)) {
                 if seen < 16 {
                     // Short runs are most runs: a loop beats a memmove call.
                     for (d, v) in dst.iter_mut().zip(src) {
@@ -241,14 +250,19 @@ pub fn scanline_runs(
 fn visible_spans(row: &[Voxel], threshold: u8) -> impl Iterator<Item = (usize, usize)> + '_ {
     let mut i = 0;
     core::iter::from_fn(move || {
-        let start = i + row[i..]
+        // `i` never passes the row's end.
+        let start = i + row
+            .get(i..)
+            .unwrap_or_default()
             .iter()
             .position(|v| is_visible(v, threshold))
             .unwrap_or(row.len() - i);
         if start == row.len() {
             return None;
         }
-        let len = row[start..]
+        let len = row
+            .get(start..)
+            .unwrap_or_default()
             .iter()
             .position(|v| !is_visible(v, threshold))
             .unwrap_or(row.len() - start);
@@ -325,9 +339,17 @@ impl<'a> Encoder<'a> {
         scans: &'a mut [ScanIndex],
     ) -> Result<Self, Error> {
         let [_, nj, nk] = axis.permuted_dims(grid.dims);
-        need("scans", nj * nk + 1, scans.len())?;
-        let scans = &mut scans[..nj * nk + 1];
-        scans[0] = ScanIndex { run: 0, voxel: 0 };
+        let got = scans.len();
+        let Some(scans) = scans.get_mut(..nj * nk + 1) else {
+            return Err(Error::BufferTooSmall {
+                what: "scans",
+                needed: nj * nk + 1,
+                got,
+            });
+        };
+        if let Some(first) = scans.first_mut() {
+            *first = ScanIndex { run: 0, voxel: 0 };
+        }
         Ok(Encoder {
             writer: RunWriter::new(Some(runs), Some(voxels)),
             scans,
@@ -360,10 +382,13 @@ impl<'a> Encoder<'a> {
         for row in slice.chunks_exact(ni) {
             self.writer.scanline(row, self.threshold);
             self.line += 1;
-            self.scans[self.line] = ScanIndex {
-                run: self.writer.n_runs as u32,
-                voxel: self.writer.n_vox as u32,
-            };
+            // `new` sized the index for every scanline.
+            if let Some(entry) = self.scans.get_mut(self.line) {
+                *entry = ScanIndex {
+                    run: self.writer.n_runs as u32,
+                    voxel: self.writer.n_vox as u32,
+                };
+            }
         }
         Ok(())
     }
@@ -438,9 +463,14 @@ impl<'a> RleAxis<'a> {
                 reason: "scanline index length is not nj·nk + 1",
             });
         }
-        if scans[0] != (ScanIndex { run: 0, voxel: 0 })
-            || scans[lines].run as usize != runs.len()
-            || scans[lines].voxel as usize != voxels.len()
+        let (Some(first), Some(last)) = (scans.first(), scans.last()) else {
+            return Err(Error::MalformedRle {
+                reason: "scanline index length is not nj·nk + 1",
+            });
+        };
+        if *first != (ScanIndex { run: 0, voxel: 0 })
+            || last.run as usize != runs.len()
+            || last.voxel as usize != voxels.len()
         {
             return Err(Error::MalformedRle {
                 reason: "scanline index does not span the run and voxel arrays",
@@ -479,15 +509,15 @@ impl<'a> RleAxis<'a> {
         if k >= nk {
             return None;
         }
-        let scans = &self.scans[k * nj..=(k + 1) * nj];
-        let base = scans[0];
-        let end = scans[nj];
+        // All in range for a validated axis copy (`new` checked the index).
+        let scans = self.scans.get(k * nj..=(k + 1) * nj)?;
+        let (&base, &end) = (scans.first()?, scans.last()?);
         Some(RleSlice {
             ni,
             nj,
             base,
-            runs: &self.runs[base.run as usize..end.run as usize],
-            voxels: &self.voxels[base.voxel as usize..end.voxel as usize],
+            runs: self.runs.get(base.run as usize..end.run as usize)?,
+            voxels: self.voxels.get(base.voxel as usize..end.voxel as usize)?,
             scans,
         })
     }
@@ -500,14 +530,20 @@ impl<'a> RleAxis<'a> {
         let p = self.axis.permutation();
         let [_, nj, nk] = self.axis.permuted_dims(self.dims);
         let stride = [1, self.dims[0], self.dims[0] * self.dims[1]];
-        for v in out[..n].iter_mut() {
+        // `p` is a permutation of 0..3.
+        let [si, sj, sk] = p.map(|a| stride.get(a).copied().unwrap_or(0));
+        for v in out.iter_mut().take(n) {
             *v = Voxel::default();
         }
         for k in 0..nk {
             let Some(s) = self.slice(k) else { break };
             for j in 0..nj {
-                let base = k * stride[p[2]] + j * stride[p[1]];
-                s.for_each_visible(j, |i, v| out[base + i * stride[p[0]]] = *v);
+                let base = k * sk + j * sj;
+                s.for_each_visible(j, |i, v| {
+                    if let Some(o) = out.get_mut(base + i * si) {
+                        *o = *v;
+                    }
+                });
             }
         }
         Ok(())

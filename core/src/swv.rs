@@ -713,10 +713,12 @@ fn look_bytes(look: &Look) -> Result<[u8; LOOK_LEN], Error> {
         for (i, x) in [lt.ka, lt.kd, lt.ks, lt.shininess].iter().enumerate() {
             b[l + 4 + 4 * i..l + 8 + 4 * i].copy_from_slice(&(*x as f32).to_le_bytes());
         }
+        // At most MAX_LIGHTS lights, which the block has room for.
         for (i, light) in lt.lights.iter().enumerate() {
             let o = l + 20 + 24 * i;
             for (j, x) in light.direction.iter().chain(light.color.iter()).enumerate() {
-                b[o + 4 * j..o + 4 * j + 4].copy_from_slice(&(*x as f32).to_le_bytes());
+                let at = b.get_mut(o + 4 * j..).unwrap_or_default();
+                copy_bytes(at, &(*x as f32).to_le_bytes());
             }
         }
     }

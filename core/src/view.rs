@@ -348,7 +348,8 @@ impl Factorization {
             [0.0, 0.0, -1.0],
         ];
         let dir_row = |a: usize| -> [f64; 3] {
-            let o = p[a];
+            // `p` is a permutation of 0..3; the `min` shows the compiler the index fits.
+            let o = p[a].min(2);
             core::array::from_fn(|c| {
                 (rot[0][o] * cam_rows[0][c]
                     + rot[1][o] * cam_rows[1][c]
@@ -393,7 +394,8 @@ impl Factorization {
                 + ratio_sq[3] * (v - ratio_sq[4]) * (v - ratio_sq[4])
         };
         let (uw, vh) = ((iw - 1.0), (ih - 1.0));
-        let r2_min = r2(ratio_sq[2].clamp(0.0, uw), ratio_sq[4].clamp(0.0, vh));
+        // `max` then `min`: `clamp` panics on an empty range or a NaN bound.
+        let r2_min = r2(ratio_sq[2].max(0.0).min(uw), ratio_sq[4].max(0.0).min(vh));
         let r2_max = [(0.0, 0.0), (uw, 0.0), (0.0, vh), (uw, vh)]
             .iter()
             .map(|&(u, v)| r2(u, v))

@@ -611,12 +611,14 @@ fn warp_generic<T: Texel>(
                 let at = |x: usize| (u + x as i64 * du, v + x as i64 * dv);
                 let inside = |from: usize, to: usize, out: &mut [T]| {
                     let (u, v) = at(from);
-                    run(px, iwu, (u, du), (v, dv), &mut out[from..to], zero);
+                    // from <= to <= w, the row's width.
+                    let pixels = out.get_mut(from..to).unwrap_or_default();
+                    run(px, iwu, (u, du), (v, dv), pixels, zero);
                 };
                 let (a, b) = (xi.max(c0), xj.min(c1));
                 match extents {
                     _ if a >= b => {}
-                    _ if empty_tile => out[a..b].fill(zero),
+                    _ if empty_tile => out.get_mut(a..b).unwrap_or_default().fill(zero),
                     None => inside(a, b, out),
                     Some(ext) => {
                         // Runs of SKIP_RUN pixels over background are filled; the pixels
@@ -626,7 +628,7 @@ fn warp_generic<T: Texel>(
                             let end = (x + SKIP_RUN).min(b);
                             if background(ext, at(x), at(end - 1)) {
                                 inside(start, x, out);
-                                out[x..end].fill(zero);
+                                out.get_mut(x..end).unwrap_or_default().fill(zero);
                                 start = end;
                             }
                         }
@@ -779,7 +781,9 @@ fn inside<T: Texel>(px: &[Rgba], iw: usize, u: i64, v: i64, zero: T) -> Option<T
 fn taps_at(px: &[Rgba], iw: usize, u: i64, v: i64) -> Option<[u64; 4]> {
     let base = (v >> FRAC) as usize * iw + (u >> FRAC) as usize;
     let q = px.get(base..base.checked_add(iw + 2)?)?;
-    Some([pack(&q[0]), pack(&q[1]), pack(&q[iw]), pack(&q[iw + 1])])
+    // `q` is `iw + 2` long: its last two entries are `q[iw]` and `q[iw + 1]`.
+    let ([tl, tr], [bl, br]) = (q.first_chunk::<2>()?, q.last_chunk::<2>()?);
+    Some([pack(tl), pack(tr), pack(bl), pack(br)])
 }
 
 /// The pixels `out` of a row whose four taps all lie inside the intermediate image `px`

@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
-# Lists the calls to the panic handler left in the release firmware, each by the
-# innermost line of the core or the firmware it was inlined from, with a count.
+# Lists the calls to the panic handler left in a release firmware binary
+# (`panics.sh` for the renderer, `panics.sh audit` for the binary that links every entry
+# point of the core), each by the innermost line of the core or the firmware it was
+# inlined from, with a count.
 #
 # The release firmware does not link while any is left (see the panic handler in
 # src/main.rs); this builds it with the plain handler instead (SHEARWARP_LIST_PANICS, in
 # a target directory of its own) and reads the calls out of its disassembly. Prints
 # "no panic paths" and exits 0 when there are none.
 set -euo pipefail
+bin="${1:-shearwarp-mcu}"
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
 swv="${SHEARWARP_SWV:-$root/target/mcu/head64.swv}"
@@ -17,15 +20,16 @@ if [ ! -f "$swv" ]; then
 fi
 target="$here/target/panic-sites"
 (cd "$here" && SHEARWARP_SWV="$swv" SHEARWARP_LIST_PANICS=1 CARGO_TARGET_DIR="$target" \
-    cargo build --release -q)
-elf="$target/thumbv7m-none-eabi/release/shearwarp-mcu"
+    cargo build --release -q --bin "$bin")
+elf="$target/thumbv7m-none-eabi/release/$bin"
 objdump="$(ls "$(rustc --print sysroot)"/lib/rustlib/*/bin/llvm-objdump 2>/dev/null | head -1 || true)"
 [ -n "$objdump" ] || { echo "needs llvm-objdump: rustup component add llvm-tools" >&2; exit 2; }
 
-# Branches (calls or jumps) into the panic machinery of `core`, outside it.
+# Branches (calls or jumps) into the panic machinery of `core` (the panicking functions
+# and the `*_fail` helpers of slice indexing and copying), from outside it.
 sites="$("$objdump" -d --no-show-raw-insn "$elf" | awk '
-    /^[0-9a-f]+ <.*>:$/ { inside = ($2 ~ /panicking|slice_index_fail|panic_const|rust_begin_unwind/) }
-    !inside && /\t(bl?|b\.w|b[a-z][a-z](\.w)?)\t.*<(core::panicking|.*panicking.*|.*slice_index_fail.*|.*panic_const.*)>/ {
+    /^[0-9a-f]+ <.*>:$/ { inside = ($2 ~ /panic|_fail/) }
+    !inside && /\t(bl?|b\.w|b[a-z][a-z](\.w)?)\t.*<[^>]*(panic|_fail)[^>]*>/ {
         sub(":", "", $1); print "0x" $1 }')"
 if [ -z "$sites" ]; then
     echo "no panic paths"
@@ -36,7 +40,7 @@ echo "panic paths: $(echo "$sites" | wc -l)"
 echo "$sites" | addr2line -e "$elf" -i -f -C -a | awk '
     /^0x/ { if (addr != "") print best; addr = $0; best = ""; fn = ""; next }
     fn == "" { fn = $0; next }
-    { if (best == "" && $0 ~ /(core|mcu)\/src\/[a-z_]+\.rs:[0-9]+/) best = fn " " $0; fn = "" }
+    { if (best == "" && $0 ~ /(core|mcu)\/src\/[a-z_]+\.rs:[0-9]+/ && $0 !~ /\/library\//) best = fn " " $0; fn = "" }
     END { if (addr != "") print best }' | sed 's# /[^ ]*/\(core\|mcu\)/src/# \1/src/#; s/ (discriminator.*)//' |
     sort | uniq -c | sort -rn
 exit 1
