@@ -333,6 +333,7 @@ impl<'b> Row<'b> {
         (self.dirty.0 < self.dirty.1).then_some(self.dirty)
     }
 
+    #[inline(never)]
     pub(crate) fn clear(&mut self) {
         let (a, b) = self.dirty;
         let b = b.min(self.buf.len());
@@ -375,10 +376,10 @@ impl<'b> Row<'b> {
                     hi = b + 1;
                     // Both in bounds for a validated slice and a buffer of
                     // `row_buffer_len` entries; a run past them is not shaded.
-                    let (Some(dst), Some(src)) = (
-                        self.buf.get_mut(a + 1..b + 1),
-                        voxels.get(base..base + (b - a)),
-                    ) else {
+                    // `shade_run` shades as many voxels as `dst` holds.
+                    let (Some(dst), Some(src)) =
+                        (self.buf.get_mut(a + 1..b + 1), voxels.get(base..))
+                    else {
                         continue;
                     };
                     shade_run(dst, src, a, t, scale, j, shadow, k);
@@ -407,10 +408,9 @@ impl<'b> Row<'b> {
                             // zero, and zero taps leave a pixel as it is.
                             lo = lo.min(c + 1);
                             hi = d + 1;
-                            let (Some(dst), Some(src)) = (
-                                self.buf.get_mut(c + 1..d + 1),
-                                voxels.get(base + (c - a)..base + (d - a)),
-                            ) else {
+                            let (Some(dst), Some(src)) =
+                                (self.buf.get_mut(c + 1..d + 1), voxels.get(base + (c - a)..))
+                            else {
                                 continue;
                             };
                             shade_run(dst, src, c, t, scale, j, shadow, k);
@@ -553,7 +553,8 @@ fn visible_extent(runs: &[u8], ni: usize) -> Option<(usize, usize)> {
     (first < last).then_some((first, last))
 }
 
-/// Shades voxels `src` (the first at index `first` of row `j`) into `out`.
+/// Shades voxels `src` (the first at index `first` of row `j`) into `out`, as many as
+/// `out` holds (`src` may run on past them).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn shade_run(
@@ -1280,14 +1281,11 @@ fn over_span(
         let e = opaque::open_run_end(opaque, width, u, end);
         // Pixels u..e read buffer entries u − n ..= e − n of both rows.
         let bl = (u as i64 - taps.n as i64) as usize;
-        let m = e - u;
         // In bounds: the compositors place the span inside the scanline and the taps
-        // inside the row buffers.
-        let (Some(px), Some(top), Some(bot)) = (
-            pixels.get_mut(u..e),
-            taps.top.get(bl..bl + m + 1),
-            taps.bot.get(bl..bl + m + 1),
-        ) else {
+        // inside the row buffers. The kernels read `px.len() + 1` entries of each row.
+        let (Some(px), Some(top), Some(bot)) =
+            (pixels.get_mut(u..e), taps.top.get(bl..), taps.bot.get(bl..))
+        else {
             return;
         };
         let highest = kern.over_run(px, top, bot, taps.w);
