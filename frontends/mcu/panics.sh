@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Lists the calls to the panic handler left in a release firmware binary
-# (`panics.sh` for the renderer, `panics.sh audit` for the binary that links every entry
-# point of the core), each by the innermost line of the core or the firmware it was
+# (`panics.sh` for the renderer, `panics.sh audit` for the binary that links the core's
+# other entry points), each by the innermost line of the core or the firmware it was
 # inlined from, with a count.
 #
 # The release firmware does not link while any is left (see the panic handler in
-# src/main.rs); this builds it with the plain handler instead (SHEARWARP_LIST_PANICS, in
+# src/no_panic.rs); this builds it with the plain handler instead (SHEARWARP_LIST_PANICS, in
 # a target directory of its own) and reads the calls out of its disassembly. Prints
 # "no panic paths" and exits 0 when there are none.
 set -euo pipefail
