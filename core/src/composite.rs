@@ -333,6 +333,9 @@ impl<'b> Row<'b> {
         (self.dirty.0 < self.dirty.1).then_some(self.dirty)
     }
 
+    /// Zeroes the entries that may be non-zero. Out of line, as it was when its slicing
+    /// could panic: inlined into its callers it cost the head's frames 0.4 % more
+    /// instructions and the hires brain's 0.6 % (callgrind, x86-64-v3).
     #[inline(never)]
     pub(crate) fn clear(&mut self) {
         let (a, b) = self.dirty;

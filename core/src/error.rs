@@ -92,3 +92,25 @@ pub(crate) fn need(what: &'static str, needed: usize, got: usize) -> Result<(), 
         Ok(())
     }
 }
+
+/// The first `needed` entries of `buf`, or the error [`need`] gives.
+pub(crate) fn prefix<'a, T>(
+    what: &'static str,
+    buf: &'a [T],
+    needed: usize,
+) -> Result<&'a [T], Error> {
+    let got = buf.len();
+    buf.get(..needed)
+        .ok_or(Error::BufferTooSmall { what, needed, got })
+}
+
+/// [`prefix`] of a mutable buffer.
+pub(crate) fn prefix_mut<'a, T>(
+    what: &'static str,
+    buf: &'a mut [T],
+    needed: usize,
+) -> Result<&'a mut [T], Error> {
+    let got = buf.len();
+    buf.get_mut(..needed)
+        .ok_or(Error::BufferTooSmall { what, needed, got })
+}

@@ -10,7 +10,7 @@ use crate::classify::Voxel;
 use crate::classify::{ColorLanes, ColorTable};
 use crate::composite::{self, Intermediate, Mode, OpacityTable, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
-use crate::error::{need, Error};
+use crate::error::{need, prefix, Error};
 use crate::fixed;
 use crate::perspective::RayGain;
 use crate::shade::{Lighting, ShadeTable};
@@ -490,15 +490,8 @@ fn band<S: SliceSource>(
                     k,
                     #[cfg_attr(target_arch = "x86_64", inline(always))]
                     |slice| {
-                        let Some(lit) = alpha.get(..w * h) else {
-                            return Err(Error::BufferTooSmall {
-                                what: "shadow buffer",
-                                needed: w * h,
-                                got: alpha.len(),
-                            });
-                        };
                         let look = ShadowLookup {
-                            alpha: lit,
+                            alpha: prefix("shadow buffer", alpha, w * h)?,
                             width: w,
                             height: h,
                             off: sf.slice_offset(k),

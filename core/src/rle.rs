@@ -16,7 +16,7 @@
 //! (z, x, y); principal z → (x, y, z).
 
 use crate::classify::{Grid, Voxel};
-use crate::error::{need, Error};
+use crate::error::{need, prefix_mut, Error};
 
 /// Scanline start offsets into the run and voxel arrays.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -339,14 +339,7 @@ impl<'a> Encoder<'a> {
         scans: &'a mut [ScanIndex],
     ) -> Result<Self, Error> {
         let [_, nj, nk] = axis.permuted_dims(grid.dims);
-        let got = scans.len();
-        let Some(scans) = scans.get_mut(..nj * nk + 1) else {
-            return Err(Error::BufferTooSmall {
-                what: "scans",
-                needed: nj * nk + 1,
-                got,
-            });
-        };
+        let scans = prefix_mut("scans", scans, nj * nk + 1)?;
         if let Some(first) = scans.first_mut() {
             *first = ScanIndex { run: 0, voxel: 0 };
         }
@@ -458,12 +451,9 @@ impl<'a> RleAxis<'a> {
         let lines = nj.checked_mul(nk).ok_or(Error::BadDimensions {
             reason: "too many scanlines",
         })?;
-        if scans.len() != lines + 1 {
-            return Err(Error::MalformedRle {
-                reason: "scanline index length is not nj·nk + 1",
-            });
-        }
-        let (Some(first), Some(last)) = (scans.first(), scans.last()) else {
+        let (true, Some(first), Some(last)) =
+            (scans.len() == lines + 1, scans.first(), scans.last())
+        else {
             return Err(Error::MalformedRle {
                 reason: "scanline index length is not nj·nk + 1",
             });
@@ -653,8 +643,7 @@ impl<'a> RleSlice<'a> {
 
     /// [`RleSlice::scanline`], `None` where the index does not point into the slice's
     /// arrays: never for `j < nj` of a validated slice, but a slice built by hand is
-    /// read as empty rows there instead of panicking. The checks are the bounds
-    /// checks indexing would make, so they cost nothing more.
+    /// read as empty rows there instead of panicking.
     #[inline(always)]
     fn scanline_checked(&self, j: usize) -> Option<(&'a [u8], &'a [Voxel])> {
         let [a, b] = [*self.scans.get(j)?, *self.scans.get(j.checked_add(1)?)?];

@@ -178,6 +178,16 @@ fn u32_at(b: &[u8], o: usize) -> u32 {
     u32::from_le_bytes(bytes_at(b, o))
 }
 
+/// A voxel from its four stored bytes (opacity, scalar, normal little-endian), as
+/// `write_record` stores it.
+fn voxel_of([opacity, scalar, n0, n1]: [u8; 4]) -> Voxel {
+    Voxel {
+        opacity,
+        scalar,
+        normal: u16::from_le_bytes([n0, n1]),
+    }
+}
+
 /// Copies as many bytes as both slices hold and returns how many: a `copy_from_slice`
 /// without its panic on unequal lengths.
 fn copy_bytes(dst: &mut [u8], src: &[u8]) -> usize {
@@ -442,13 +452,7 @@ impl<'b> RecordParser<'b> {
                 let dst = dst.unwrap_or_default();
                 let whole = (bytes.len() / 4).min(dst.len());
                 for (v, c) in dst.iter_mut().zip(bytes.chunks_exact(4)) {
-                    if let &[opacity, scalar, n0, n1] = c {
-                        *v = Voxel {
-                            opacity,
-                            scalar,
-                            normal: u16::from_le_bytes([n0, n1]),
-                        };
-                    }
+                    *v = voxel_of(bytes_at(c, 0));
                 }
                 self.got_voxels += whole;
                 taken = 4 * whole;
@@ -458,13 +462,8 @@ impl<'b> RecordParser<'b> {
                 taken = copy_bytes(pending.unwrap_or_default(), bytes);
                 self.pending_len += taken;
                 if self.pending_len == 4 {
-                    let [opacity, scalar, n0, n1] = bytes_at(&self.pending, 0);
                     if let Some(v) = self.voxels.get_mut(self.got_voxels) {
-                        *v = Voxel {
-                            opacity,
-                            scalar,
-                            normal: u16::from_le_bytes([n0, n1]),
-                        };
+                        *v = voxel_of(bytes_at(&self.pending, 0));
                     }
                     self.got_voxels += 1;
                     self.pending_len = 0;

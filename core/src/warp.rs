@@ -542,13 +542,14 @@ fn warp_generic<T: Texel>(
         // Projective: numerators and denominator in Q24, stepped exactly along the row.
         let q = |x: f64| libm::round(x.clamp(-1.0e9, 1.0e9) * (1u64 << PFRAC) as f64) as i64;
         let step = [q(m[0][0]), q(m[1][0]), q(m[2][0])];
+        let got = row.len();
         for (i, y) in rows.enumerate() {
             // Inside `row`: `strip` rows of `w` fit in it.
             let row = row.get_mut(i % strip * w..).and_then(|r| r.get_mut(..w));
             let row = row.ok_or(Error::BufferTooSmall {
                 what: "warp row",
                 needed: w,
-                got: 0,
+                got,
             })?;
             let yc = y as f64 + 0.5;
             let at = |r: usize| q(m[r][0] * 0.5 + m[r][1] * yc + m[r][2]);
