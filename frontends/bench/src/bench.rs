@@ -50,18 +50,9 @@ pub struct Stats {
 
 impl Stats {
     pub fn of(samples: &[f64]) -> Stats {
-        let mut s = samples.to_vec();
-        s.sort_by(f64::total_cmp);
-        let n = s.len();
-        if n == 0 {
-            return Stats::default();
+        Stats {
+            median: shearwarp_file::stats::median(samples),
         }
-        let median = if n % 2 == 1 {
-            s[n / 2]
-        } else {
-            0.5 * (s[n / 2 - 1] + s[n / 2])
-        };
-        Stats { median }
     }
 }
 

@@ -10,6 +10,7 @@ pub mod isa;
 pub mod presets;
 pub mod reslice;
 pub mod scene;
+pub mod stats;
 mod steal;
 pub mod tffile;
 pub mod tfspec;

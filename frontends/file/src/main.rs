@@ -10,6 +10,7 @@ use shearwarp_file::anim;
 use shearwarp_file::isa::Isa;
 use shearwarp_file::presets;
 use shearwarp_file::scene::{self, Classification, Encoded, FrameTimes, Look, Renderer};
+use shearwarp_file::stats::median;
 use shearwarp_file::tffile::{Resolved, TfFileError, TfSpec};
 use shearwarp_file::tfspec;
 use shearwarp_file::volume::{self, RawVolume, Voxels};
@@ -907,7 +908,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                         "dims_xyz": d.vol.grid.dims,
                         "image": [d.camera.width, d.camera.height],
                         "frames": frames,
-                        "median_ms": times[frames / 2],
+                        "median_ms": median(&times),
                         "min_ms": times[0],
                         "preprocess_ms": preprocess,
                     })
@@ -923,7 +924,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 out.text(format_args!(
                     "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
                     frames,
-                    times[frames / 2],
+                    median(&times),
                     times[0],
                     preprocess
                 ));
@@ -1066,7 +1067,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                         "visible_voxels": p.encoded.visible_voxels(),
                         "rle_bytes": p.encoded.bytes(),
                         "frames": frames,
-                        "median_ms": times[frames / 2],
+                        "median_ms": median(&times),
                         "min_ms": times[0],
                         "preprocess_ms": preprocess,
                         "phase_medians_ms": {
@@ -1094,7 +1095,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 out.text(format_args!(
                     "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",
                     frames,
-                    times[frames / 2],
+                    median(&times),
                     times[0],
                     preprocess
                 ));
@@ -1122,23 +1123,22 @@ struct PhaseMedians {
 
 impl PhaseMedians {
     fn of(frames: &[FrameTimes]) -> Self {
-        let median = |f: &dyn Fn(&FrameTimes) -> Option<Duration>| {
-            let mut v: Vec<f64> = frames
+        let of = |f: &dyn Fn(&FrameTimes) -> Option<Duration>| {
+            let v: Vec<f64> = frames
                 .iter()
                 .filter_map(f)
                 .map(|d| d.as_secs_f64() * 1e3)
                 .collect();
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied().unwrap_or(0.0)
+            median(&v)
         };
         let threads = frames.iter().map(|t| t.busy.len()).max().unwrap_or(0);
         PhaseMedians {
-            setup: median(&|t| Some(t.setup)),
-            composite: median(&|t| Some(t.composite)),
+            setup: of(&|t| Some(t.setup)),
+            composite: of(&|t| Some(t.composite)),
             busy: (0..threads)
-                .map(|i| median(&|t| t.busy.get(i).copied()))
+                .map(|i| of(&|t| t.busy.get(i).copied()))
                 .collect(),
-            warp: median(&|t| Some(t.warp)),
+            warp: of(&|t| Some(t.warp)),
         }
     }
 }
