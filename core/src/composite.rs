@@ -786,9 +786,10 @@ pub(crate) use premultiply_sse41;
 /// as a vector; runs shorter than `N` go to `short`. The run's highest opacity is kept
 /// lane by lane in a vector (`most`, one maximum a step) and read out once at the end
 /// (`opacity_of`): per step, pulling the two opacities out of the vector and comparing
-/// them in scalar registers cost 7 of the AVX2 step's 35 instructions. The step at the end overlaps the one before it rather than running past the
-/// run: it is computed first, from the pixels as they were, and stored last, so the
-/// pixels both cover get the same value twice.
+/// them in scalar registers cost 7 of the AVX2 step's 35 instructions. The step at the
+/// end overlaps the one before it rather than running past the run: it is computed
+/// first, from the pixels as they were, and stored last, so the pixels both cover get
+/// the same value twice.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn by_steps<const N: usize, M: Copy>(
