@@ -909,7 +909,10 @@ macro_rules! over_run_simd {
         let narrow = $narrow;
         move |p: [Rgba; N], t: &[Rgba], b: &[Rgba]| {
             let (t, b) = (&t[..N + 1], &b[..N + 1]);
-            let at = |r: &[Rgba], o: usize| wide(core::array::from_fn(|k| r[o + k]));
+            let at = |r: &[Rgba], o: usize| -> _ {
+                let q: [Rgba; N] = bytemuck::pod_read_unaligned(bytemuck::cast_slice(&r[o..o + N]));
+                wide(q)
+            };
             let sum = $add(
                 $add($mul(wv[0], at(t, 0)), $mul(wv[1], at(t, 1))),
                 $add($mul(wv[2], at(b, 0)), $mul(wv[3], at(b, 1))),
