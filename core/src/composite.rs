@@ -909,7 +909,7 @@ macro_rules! over_run_simd {
         let narrow = $narrow;
         move |p: [Rgba; N], t: &[Rgba], b: &[Rgba]| {
             let (t, b) = (&t[..N + 1], &b[..N + 1]);
-            let at = |r: &[Rgba], o: usize| -> _ {
+            let at = |r: &[Rgba], o: usize| {
                 let q: [Rgba; N] = bytemuck::pod_read_unaligned(bytemuck::cast_slice(&r[o..o + N]));
                 wide(q)
             };

@@ -1123,7 +1123,7 @@ struct PhaseMedians {
 
 impl PhaseMedians {
     fn of(frames: &[FrameTimes]) -> Self {
-        let of = |f: &dyn Fn(&FrameTimes) -> Option<Duration>| {
+        let median_of = |f: &dyn Fn(&FrameTimes) -> Option<Duration>| {
             let v: Vec<f64> = frames
                 .iter()
                 .filter_map(f)
@@ -1133,12 +1133,12 @@ impl PhaseMedians {
         };
         let threads = frames.iter().map(|t| t.busy.len()).max().unwrap_or(0);
         PhaseMedians {
-            setup: of(&|t| Some(t.setup)),
-            composite: of(&|t| Some(t.composite)),
+            setup: median_of(&|t| Some(t.setup)),
+            composite: median_of(&|t| Some(t.composite)),
             busy: (0..threads)
-                .map(|i| of(&|t| t.busy.get(i).copied()))
+                .map(|i| median_of(&|t| t.busy.get(i).copied()))
                 .collect(),
-            warp: of(&|t| Some(t.warp)),
+            warp: median_of(&|t| Some(t.warp)),
         }
     }
 }
