@@ -65,132 +65,20 @@ fn to_fixed(x: f64) -> i64 {
     libm::round(c * (1u64 << FRAC) as f64) as i64
 }
 
-/// [`inside_run`] for 8-bit output by `N` pixels at a time with `step`, which warps `N`
-/// pixels from the 16.16 position of the first and their taps (each pixel's four,
-/// [`pack`]ed, as [`taps_at`] reads them). A step whose taps are all zero is
-/// background, as in [`inside`]; the pixels left over, and a step with a tap outside
-/// the image (only if the caller's interval were wrong), go to [`inside_run`].
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn inside_by_steps<const N: usize>(
-    px: &[Rgba],
-    iw: usize,
-    (u, du): (i64, i64),
-    (v, dv): (i64, i64),
-    out: &mut [[u8; 4]],
-    zero: [u8; 4],
-    step: impl Fn((i64, i64), [[u64; 4]; N]) -> [[u8; 4]; N],
-) {
-    let steps = out.len() / N;
-    for (k, o) in out.chunks_exact_mut(N).enumerate() {
-        let (ux, vx) = (u + (N * k) as i64 * du, v + (N * k) as i64 * dv);
-        let taps: [Option<[u64; 4]>; N] =
-            core::array::from_fn(|p| taps_at(px, iw, ux + p as i64 * du, vx + p as i64 * dv));
-        if taps.iter().any(Option::is_none) {
-            inside_run(px, iw, (ux, du), (vx, dv), o, zero);
-        } else {
-            let taps = taps.map(Option::unwrap_or_default);
-            if taps.iter().flatten().all(|&t| t == 0) {
-                o.fill(zero);
-            } else {
-                o.copy_from_slice(&step((ux, vx), taps));
-            }
-        }
-    }
-    let x = (N * steps) as i64;
-    let rest = &mut out[N * steps..];
-    inside_run(px, iw, (u + x * du, du), (v + x * dv, dv), rest, zero);
-}
-
-/// [`inside_run`] for 8-bit output in AVX-512 vectors, 4 pixels a step
-/// ([`inside_by_steps`]): each pixel's four channels are four 32-bit lanes of one
-/// 128-bit part of a register. The weights are computed in the vector too: the
-/// fractional parts of the positions need only the low 16 bits, so they are taken from
-/// wrapping 32-bit lanes; the taps' addresses use the full positions. (The x86-64-v3
-/// build had a two-pixel AVX2 version of it until [`inside_run_madd`] replaced it.)
-///
-/// Bit-identical to [`inside_run`] with [`Texel::inner`] for `[u8; 4]`: every sum fits
-/// its lane (the weights sum to `ONE`, taps are at most `65535`), and the result is
-/// clamped to `ONE` before it is scaled to 8 bits, as [`fixed::to_u8`] does. A macro
-/// expanding to a closure, written inside the `target_feature` function that uses it
-/// (see [`crate::render::composite_band_until_x86_v3`] for why).
-#[cfg(target_arch = "x86_64")]
-macro_rules! inside_run_simd {
-    (avx512) => {
-        |px: &[Rgba], iw: usize, u: (i64, i64), v: (i64, i64), out: &mut [[u8; 4]], zero| {
-            use core::arch::x86_64::*;
-            let step = inside_run_simd!(
-                step 4, u.1, v.1,
-                _mm512_set1_epi32, _mm512_add_epi32, _mm512_sub_epi32, _mm512_mullo_epi32,
-                _mm512_srli_epi32, _mm512_min_epu32, _mm512_and_si512, _mm512_shuffle_epi32,
-                _mm512_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3),
-                // Built in registers: taps stored to an array and loaded back as one
-                // vector would wait for the stores.
-                |t: [u64; 4]| {
-                    let t = t.map(|x| x as i64);
-                    _mm512_cvtepu16_epi32(_mm256_set_epi64x(t[3], t[2], t[1], t[0]))
-                },
-                |a, b| _mm512_mask_blend_epi32(0xcccc, a, b),
-                |a, b| _mm512_mask_blend_epi32(0xaaaa, a, b),
-                |q| -> [[u8; 4]; 4] { bytemuck::cast(_mm512_cvtepi32_epi8(q)) }
-            );
-            inside_by_steps::<4>(px, iw, u, v, out, zero, step)
-        }
-    };
-    // One step of N pixels: `lanes` holds each lane's pixel index, `wide` widens tap k
-    // of the N pixels to their lanes, `bottom` and `odd` take lanes 2-3 and lanes 1, 3
-    // of each pixel from their second argument, `narrow` gives the pixels' bytes.
-    (step $n:literal, $du:expr, $dv:expr, $set1:ident, $add:ident, $sub:ident, $mul:ident,
-     $srli:ident, $min:ident, $and:ident, $shuffle:ident, $lanes:expr, $wide:expr,
-     $bottom:expr, $odd:expr, $narrow:expr) => {{
-        const N: usize = $n;
-        let lanes = $lanes;
-        let (pdu, pdv) = ($mul(lanes, $set1($du as i32)), $mul(lanes, $set1($dv as i32)));
-        let (frac, whole) = ($set1(0xffff), $set1(0x1_0000));
-        let (one, half, c255) = ($set1(ONE as i32), $set1(1 << 14), $set1(255));
-        let (wide, bottom, odd, narrow) = ($wide, $bottom, $odd, $narrow);
-        move |(u, v): (i64, i64), taps: [[u64; 4]; N]| -> [[u8; 4]; N] {
-            // Tap k of the N pixels.
-            let tap = |k: usize| wide(core::array::from_fn(|p| taps[p][k]));
-            // Weights, as `weights` computes them, in every lane of a pixel.
-            let uu = $add($set1(u as i32), pdu);
-            let vv = $add($set1(v as i32), pdv);
-            let fu = $srli::<1>($sub(whole, $and(uu, frac)));
-            let fv = $srli::<1>($sub(whole, $and(vv, frac)));
-            // Lanes 2 and 3 of a pixel take the bottom row's share.
-            let t = bottom(fv, $sub(one, fv));
-            let p = $srli::<15>($mul(t, fu));
-            let w = odd(p, $sub(t, p));
-            let sum = $add(
-                $add(
-                    $mul($shuffle::<0x00>(w), tap(0)),
-                    $mul($shuffle::<0x55>(w), tap(1)),
-                ),
-                $add(
-                    $mul($shuffle::<0xaa>(w), tap(2)),
-                    $mul($shuffle::<0xff>(w), tap(3)),
-                ),
-            );
-            let q = $min($srli::<15>($add(sum, half)), one);
-            narrow($srli::<15>($add($mul(q, c255), half)))
-        }
-    }};
-}
-
 /// [`inside_run`] for 8-bit output in AVX2, four pixels a step, with the bilinear sums
 /// taken by 16-bit multiply-adds (`vpmaddwd`), which multiply and add a pixel's two
 /// horizontal taps in one instruction: a 128-bit half of a register holds one pixel's
 /// left and right tap, channel by channel (one shuffle of the two neighbouring pixels as
-/// stored). The 32-bit-lane version ([`inside_run_simd`]) spent four multiplies per two
-/// pixels and loaded each tap on its own; this one spends two multiply-adds per two
-/// pixels and loads each pair of taps whole.
+/// stored). A version in 32-bit lanes spent four multiplies per two pixels and loaded
+/// each tap on its own; this one spends two multiply-adds per two pixels and loads each
+/// pair of taps whole.
 ///
 /// The multiply-add is signed, 16 by 16 bits, and a tap may be [`ONE`] (`0x8000`), so
 /// the taps are offset by `−2^14` to `−2^14..=2^14`. The weights sum to [`ONE`], so the
 /// offset takes exactly `2^14·2^15 = 2^29` from every sum, and adding it back gives the
 /// sum [`interior`] takes: bit-identical to [`inside_run`] with [`Texel::inner`] for
-/// `[u8; 4]` (the weights are [`weights`]'s, from the low 16 bits of wrapping 32-bit
-/// positions, as in [`inside_run_simd`]). A weight can be `ONE` itself (a position on
+/// `[u8; 4]` (the weights are [`weights`]'s, taken from the low 16 bits of wrapping
+/// 32-bit positions: only the fractions are needed). A weight can be `ONE` itself (a position on
 /// the grid in both directions, or on it in one and a step short in the other), and a
 /// caller's taps may exceed `ONE` (no compositor writes them): a step with either goes
 /// to [`inside_run`], as do steps with a tap outside the image (only if the caller's
@@ -360,8 +248,13 @@ pub fn warp_rows_x86_v3(
 }
 
 /// [`warp_rows`] compiled for x86-64-v4 (AVX-512 F/BW/VL/DQ/CD on top of x86-64-v3),
-/// bit-identical: the pixels whose four taps lie inside the intermediate image, most of
-/// an image, are warped four at a time by [`inside_run_simd`].
+/// bit-identical: the same kernel as [`warp_rows_x86_v3`], [`inside_run_madd`], which
+/// the compiler encodes with AVX-512's extra registers. An AVX-512 kernel of its own,
+/// four pixels a step in 32-bit lanes with 32-bit multiplies, was slower on a Zen 4
+/// than the 16-bit multiply-adds: warping the same frame alternately with both in one
+/// process (median of 144), 0.57 against 0.44 ms on the head at 512², 0.10 against
+/// 0.08 ms on brainsmall at 256²; compiled here, `inside_run_madd` takes 4–8 % less
+/// than in the x86-64-v3 build.
 ///
 /// # Safety
 ///
@@ -381,7 +274,7 @@ pub fn warp_rows_x86_v4(
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
     let put = |y, r: &[[u8; 4]]| sink.put_row(y, r);
-    warp_generic(px, extents, view, rows, row, put, &inside_run_simd!(avx512))
+    warp_generic(px, extents, view, rows, row, put, &inside_run_madd!())
 }
 
 /// As [`warp_rows`], handing out rows at the intermediate image's full precision:
