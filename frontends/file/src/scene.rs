@@ -929,15 +929,31 @@ impl Renderer {
         };
         // Every row is computed on its own, so the result does not depend on the split.
         // Strips are claimed as threads finish: the object rarely covers the top and
-        // bottom halves of the image alike.
+        // bottom halves of the image alike. The calling thread claims them from one end
+        // of the image and the others from the other end: the calling thread composited
+        // the intermediate image's top band, which the output's top rows read when the
+        // map runs down the intermediate image (`image_to_intermediate[1][1] >= 0`), its
+        // bottom rows otherwise, so each thread mostly reads pixels its own cache holds.
+        // Two threads, frames alternating in pairs in one process (medians of 180
+        // warps), against claiming from the top only: 0.85–0.91× the time in six of
+        // eight comparisons on brainsmall and the head at 256² and 512², 0.99 and 1.01
+        // in the other two; with the ends the other way round, 0.93–1.02×.
         const PANICKED: &str = "a warp thread panicked";
         let strips = Mutex::new(frame.chunks_mut(STRIP * w).enumerate());
-        let work = |_| -> Result<(), Error> {
+        let top_first = view.image_to_intermediate[1][1] >= 0.0;
+        let work = |t: usize| -> Result<(), Error> {
+            let forward = (t == 0) == top_first;
             loop {
-                let next = strips
-                    .lock()
-                    .map_err(|_| Error::Source { reason: PANICKED })?
-                    .next();
+                let next = {
+                    let mut left = strips
+                        .lock()
+                        .map_err(|_| Error::Source { reason: PANICKED })?;
+                    if forward {
+                        left.next()
+                    } else {
+                        left.next_back()
+                    }
+                };
                 let Some((i, chunk)) = next else {
                     return Ok(());
                 };
