@@ -78,13 +78,13 @@ fn to_fixed(x: f64) -> i64 {
 /// offset takes exactly `2^14·2^15 = 2^29` from every sum, and adding it back gives the
 /// sum [`interior`] takes: bit-identical to [`inside_run`] with [`Texel::inner`] for
 /// `[u8; 4]` (the weights are [`weights`]'s, taken from the low 16 bits of wrapping
-/// 32-bit positions: only the fractions are needed). A weight can be `ONE` itself (a position on
-/// the grid in both directions, or on it in one and a step short in the other), and a
-/// caller's taps may exceed `ONE` (no compositor writes them): a step with either goes
-/// to [`inside_run`], as do steps with a tap outside the image (only if the caller's
-/// interval were wrong) and the pixels left over. Rounding to bytes is `vpmulhrsw` by
-/// 255, which is exactly `(q·255 + 2^14) >> 15`, after a saturating pack that turns
-/// `q = ONE` into `ONE − 1` (both give 255).
+/// 32-bit positions: only the fractions are needed). A weight can be `ONE` itself (a
+/// position on the grid in both directions, or on it in one and a step short in the
+/// other), and a caller's taps may exceed `ONE` (no compositor writes them): a step with
+/// either goes to [`inside_run`], as do steps with a tap outside the image (only if the
+/// caller's interval were wrong) and the pixels left over. Rounding to bytes is
+/// `vpmulhrsw` by 255, which is exactly `(q·255 + 2^14) >> 15`, after a saturating pack
+/// that turns `q = ONE` into `ONE − 1` (both give 255).
 #[cfg(target_arch = "x86_64")]
 macro_rules! inside_run_madd {
     () => {
