@@ -934,7 +934,11 @@ impl Renderer {
         // the intermediate image's top band, which the output's top rows read when the
         // map runs down the intermediate image (`image_to_intermediate[1][1] >= 0`), its
         // bottom rows otherwise, so each thread mostly reads pixels its own cache holds.
-        // Two threads, frames alternating in pairs in one process (medians of 180
+        // That holds where the scanline changes down the output image; in views whose
+        // scanlines run across it (half of a turn about the vertical axis), every strip
+        // reads every band whichever end it is taken from (brainsmall at 256²: the
+        // two-thread warp gains 1.35× there, 1.52× in the other views; a split by
+        // columns, measured instead, was slower, see BENCHMARKS.md). Two threads, frames alternating in pairs in one process (medians of 180
         // warps), against claiming from the top only: 0.85–0.91× the time in six of
         // eight comparisons on brainsmall and the head at 256² and 512², 0.99 and 1.01
         // in the other two; with the ends the other way round, 0.93–1.02×.
