@@ -402,9 +402,8 @@ type Own<'a, S> = (
 /// when the threads slept, 0.004 ms when they spin, out of a frame of about 1 ms. The
 /// limit bounds the waste when another process holds the other core.
 ///
-/// The count is read between single pauses (a batch of 64 pauses between reads, as
-/// before, took up to a microsecond to notice the end on this host); the clock only
-/// every 64.
+/// The count is read after every pause and the clock after every 64: reading the count
+/// only after each batch of 64 pauses took up to a microsecond to notice the end here.
 fn spin_until_done(running: &AtomicUsize) {
     let start = Instant::now();
     loop {
