@@ -397,10 +397,11 @@ type Own<'a, S> = (
 /// The threads of a frame finish within a fraction of a millisecond of each other (a
 /// thread that runs out of work takes half of another's band), but a thread that blocks
 /// waits to be woken, and a pool thread that went to sleep after the compositing is slow
-/// to take the warp's first job. Measured inside the renderer (brainsmall, two threads, 36 frames at 256²,
-/// medians): the warp's worker started 0.05–0.19 ms after the compositing was joined
-/// when the threads slept, 0.004 ms when they spin, out of a frame of about 1 ms. The
-/// limit bounds the waste when another process holds the other core.
+/// to take the warp's first job. Measured inside the renderer (brainsmall, two threads,
+/// 36 frames at 256², medians): the warp's worker started 0.05–0.19 ms after the
+/// compositing was joined when the threads slept, 0.004 ms when they spin, out of a
+/// frame of about 1 ms. The limit bounds the waste when another process holds the
+/// other core.
 ///
 /// The count is read after every pause and the clock after every 64: reading the count
 /// only after each batch of 64 pauses took up to a microsecond to notice the end here.
@@ -973,10 +974,11 @@ impl Renderer {
         // scanlines run across it (half of a turn about the vertical axis), every strip
         // reads every band whichever end it is taken from (brainsmall at 256²: the
         // two-thread warp gains 1.35× there, 1.52× in the other views; a split by
-        // columns, measured instead, was slower, see BENCHMARKS.md). Two threads, frames alternating in pairs in one process (medians of 180
-        // warps), against claiming from the top only: 0.85–0.91× the time in six of
-        // eight comparisons on brainsmall and the head at 256² and 512², 0.99 and 1.01
-        // in the other two; with the ends the other way round, 0.93–1.02×.
+        // columns, measured instead, was slower, see BENCHMARKS.md). Two threads, frames
+        // alternating in pairs in one process (medians of 180 warps), against claiming
+        // from the top only: 0.85–0.91× the time in six of eight comparisons on
+        // brainsmall and the head at 256² and 512², 0.99 and 1.01 in the other two; with
+        // the ends the other way round, 0.93–1.02×.
         const PANICKED: &str = "a warp thread panicked";
         let strips = Mutex::new(frame.chunks_mut(STRIP * w).enumerate());
         let top_first = view.image_to_intermediate[1][1] >= 0.0;
