@@ -125,7 +125,8 @@ fn every_instruction_set_build_is_bit_identical_to_the_baseline() {
 #[test]
 fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
     use shearwarp_core::composite::Mode;
-    use shearwarp_file::scene::{self, Classification, Look, Renderer};
+    use shearwarp_file::renderer::Renderer;
+    use shearwarp_file::scene::{self, Classification, Look};
     use shearwarp_file::volume::{RawVolume, Voxels};
     use shearwarp_tests::reference::{self, RefMode, RefTf, RefView, RefVolume};
     // Optically thin (τ ≤ 0.1 along the longest diagonal), so the physical brightness is

@@ -10,7 +10,8 @@ use shearwarp_core::postclass::PostMode;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
 use shearwarp_file::isa::Isa;
-use shearwarp_file::scene::{self, Classification, Look, Renderer};
+use shearwarp_file::renderer::Renderer;
+use shearwarp_file::scene::{self, Classification, Look};
 use shearwarp_file::volume::{self, RawVolume, Voxels};
 use std::path::PathBuf;
 
@@ -672,7 +673,7 @@ pub fn render_ours(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
 /// As [`render_ours`], compositing with `threads` threads.
 pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<[u8; 3]> {
     if let Some(mode) = case.post {
-        let vol = scene::DenseVolume::new(raw).expect("dense volume");
+        let vol = shearwarp_file::post::DenseVolume::new(raw).expect("dense volume");
         let look = Look {
             mode: Mode::Composite,
             color: scene::color_table(case.color, vol.range).expect("colour"),
@@ -682,7 +683,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
             shadows: false,
         };
         let cam = camera(case);
-        let mut r = scene::PostRenderer::new(&vol);
+        let mut r = shearwarp_file::post::PostRenderer::new(&vol);
         let frame = r
             .render(&vol, mode, case.opacity, &look, &cam)
             .expect("render");

@@ -7,7 +7,8 @@ use crate::volpack::{self, VolPack};
 use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::Camera;
 use shearwarp_file::isa::Isa;
-use shearwarp_file::scene::{self, Encoded, FrameTimes, Look, Renderer};
+use shearwarp_file::renderer::{FrameTimes, Renderer};
+use shearwarp_file::scene::{self, Encoded, Look};
 use shearwarp_tests::metrics;
 use shearwarp_tests::reference::{self, RefMode, RefView};
 use std::error::Error;
@@ -56,7 +57,7 @@ impl Stats {
     }
 }
 
-/// Where shearwarp's frames went ([`shearwarp_file::scene::FrameTimes`]), ms: for each
+/// Where shearwarp's frames went ([`shearwarp_file::renderer::FrameTimes`]), ms: for each
 /// field, the median over the views of the phases of each view's best frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Phases {

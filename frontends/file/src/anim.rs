@@ -161,13 +161,8 @@ impl Writer {
                             .chunks_exact(3)
                             .map(|c| [c[0], c[1], c[2], 65535])
                             .collect();
-                        crate::scene::save_png16(
-                            &p,
-                            self.width as usize,
-                            self.height as usize,
-                            &rgba,
-                        )
-                        .map_err(|e| err(&p, &e))
+                        crate::png::save_png16(&p, self.width as usize, self.height as usize, &rgba)
+                            .map_err(|e| err(&p, &e))
                     }
                 }
             }

@@ -9,11 +9,13 @@ use shearwarp_core::{postclass, swv};
 use shearwarp_file::anim;
 use shearwarp_file::isa::Isa;
 use shearwarp_file::presets;
-use shearwarp_file::scene::{self, Classification, Encoded, FrameTimes, Look, Renderer};
+use shearwarp_file::renderer::{FrameTimes, Renderer};
+use shearwarp_file::scene::{self, Classification, Encoded, Look};
 use shearwarp_file::stats::median;
 use shearwarp_file::tffile::{Resolved, TfFileError, TfSpec};
 use shearwarp_file::tfspec;
 use shearwarp_file::volume::{self, RawVolume, Voxels};
+use shearwarp_file::{png, post, swvfile};
 use std::error::Error;
 use std::fmt;
 use std::io::IsTerminal;
@@ -385,7 +387,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let (encoded, look) = if scene::is_swv(path) {
+    let (encoded, look) = if swvfile::is_swv(path) {
         if o.opacity.is_some()
             || o.gradient_opacity.is_some()
             || o.u16
@@ -401,7 +403,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
                 path.display()
             )));
         }
-        let (enc, file_look) = scene::read_swv(path)?;
+        let (enc, file_look) = swvfile::read_swv(path)?;
         let color = match &o.color {
             Some(s) => scene::color_table(&tfspec::parse_color(s)?, enc.range)?,
             None => file_look.color,
@@ -601,8 +603,8 @@ fn window_volume(raw: RawVolume, lo: f64, hi: f64) -> RawVolume {
 }
 
 struct Dense {
-    vol: scene::DenseVolume,
-    renderer: scene::PostRenderer,
+    vol: post::DenseVolume,
+    renderer: post::PostRenderer,
     mode: postclass::PostMode,
     opacity: Vec<(f64, f64)>,
     look: Look,
@@ -610,7 +612,7 @@ struct Dense {
 }
 
 fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn Error>> {
-    if scene::is_swv(path) {
+    if swvfile::is_swv(path) {
         return Err(usage(format!(
             "{}: --mode post/preint/iso need the unclassified volume, not a .swv",
             path.display()
@@ -619,7 +621,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let camera = camera_of(o)?;
     let (raw, tf) = load_with_tf(path, o, out)?;
     let sp = out.spinner("quantising and computing normals".into());
-    let vol = scene::DenseVolume::new(&raw)?;
+    let vol = post::DenseVolume::new(&raw)?;
     sp.finish_and_clear();
     let mode = match tf.mode {
         ModeArg::Post => postclass::PostMode::PostClassified,
@@ -637,7 +639,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let color = scene::color_table(&tf.color, vol.range)?;
     let lighting = tf.shading.then(|| cli_lighting(o)).transpose()?;
     let look = look_of(o, ModeArg::Composite, color, lighting, false)?;
-    let renderer = scene::PostRenderer::new(&vol);
+    let renderer = post::PostRenderer::new(&vol);
     Ok(Dense {
         vol,
         renderer,
@@ -723,12 +725,12 @@ fn render_out(
         if o.png16 {
             let f = frame16(&camera)?;
             let ms = t.elapsed().as_secs_f64() * 1e3;
-            scene::save_png16(o.path, w, h, &f).map_err(|e| write_err(&e))?;
+            png::save_png16(o.path, w, h, &f).map_err(|e| write_err(&e))?;
             return Ok((1, ms));
         }
         let f = frame8(&camera)?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
-        scene::save_png(o.path, w, h, &f).map_err(|e| write_err(&e))?;
+        png::save_png(o.path, w, h, &f).map_err(|e| write_err(&e))?;
         return Ok((1, ms));
     };
     if n == 0 || n > 3600 {
@@ -1013,7 +1015,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 color: p.look.color,
                 lighting: p.look.lighting.clone(),
             };
-            scene::write_swv(&p.encoded, &look, &output)?;
+            swvfile::write_swv(&p.encoded, &look, &output)?;
             let bytes = std::fs::metadata(&output).map(|m| m.len()).unwrap_or(0);
             out.note(format_args!(
                 "{}: {}x{}x{} -> {} ({} bytes, {} stored voxels per axis copy)",

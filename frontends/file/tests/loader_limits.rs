@@ -348,7 +348,7 @@ fn swv_reader_sizes_buffers_by_what_a_slice_can_hold() {
         lighting: None,
     };
     let p = dir.0.join("v.swv");
-    scene::write_swv(&enc, &look, &p).unwrap();
+    shearwarp_file::swvfile::write_swv(&enc, &look, &p).unwrap();
     let mut b = std::fs::read(&p).unwrap();
     // Entry 0: as many runs and voxels as the whole volume "allows".
     let e = shearwarp_core::swv::TABLES_START;
@@ -356,7 +356,7 @@ fn swv_reader_sizes_buffers_by_what_a_slice_can_hold() {
     b[e + 12..e + 16].copy_from_slice(&64u32.pow(3).to_le_bytes());
     fix_table_checksums(&mut b);
     std::fs::write(&p, &b).unwrap();
-    let (r, largest) = largest_allocation(|| scene::read_swv(&p).map(|_| ()));
+    let (r, largest) = largest_allocation(|| shearwarp_file::swvfile::read_swv(&p).map(|_| ()));
     let e = r.unwrap_err();
     println!("{e}   [largest allocation {largest} B]");
     // One slice of 64×64 holds at most 64·66 runs and 4096 voxels (16 KiB).

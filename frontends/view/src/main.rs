@@ -4,7 +4,6 @@
 use clap::Parser;
 use minifb::{Key, KeyRepeat, MouseButton, MouseMode, Window, WindowOptions};
 use shearwarp_core::shade::Lighting;
-use shearwarp_file::scene;
 use shearwarp_file::tfspec;
 use shearwarp_file::volume::{self, Voxels};
 use shearwarp_view::engine::{self, Done, Job, Outcome, Quality, Scene, Settings};
@@ -479,7 +478,7 @@ impl App {
             .file_name()
             .ok_or_else(|| format!("{}: not a file name", path.display()))?;
         let tmp = path.with_file_name(format!(".{}.partial.png", name.to_string_lossy()));
-        scene::save_png(&tmp, self.size[0], self.size[1], &s.pixels)
+        shearwarp_file::png::save_png(&tmp, self.size[0], self.size[1], &s.pixels)
             .map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;
         std::fs::rename(&tmp, path)
             .map_err(|e| format!("cannot rename {} to {}: {e}", tmp.display(), path.display()))?;

@@ -21,7 +21,8 @@ use shearwarp_core::classify::Grid;
 use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::{self, Camera, Factorization};
 use shearwarp_core::Error;
-use shearwarp_file::scene::{Look, Renderer};
+use shearwarp_file::renderer::Renderer;
+use shearwarp_file::scene::Look;
 
 /// The reason a full-quality frame gives when new input interrupted it.
 pub const CANCELLED: &str = "cancelled";
@@ -155,7 +156,8 @@ mod tests {
     use super::*;
     use shearwarp_core::composite::Mode;
     use shearwarp_core::shade::Lighting;
-    use shearwarp_file::scene::{self, Classification, Renderer};
+    use shearwarp_file::renderer::Renderer;
+    use shearwarp_file::scene::{self, Classification};
     use shearwarp_file::volume::{RawVolume, Voxels};
     use std::sync::atomic::{AtomicU64, Ordering};
 
