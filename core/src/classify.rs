@@ -628,7 +628,7 @@ impl Kernel<'_> {
 /// of length `s_min`; a sample that stands for a path of `ratio · s_min` has opacity
 /// `1 − (1 − α)^ratio`. Returns the corrected opacity in Q15 for each 8-bit opacity.
 ///
-/// `(1 − α)^ratio` is evaluated as `exp(ratio · ln(1 − α))` from the table [`LN_CLEAR`]:
+/// `(1 − α)^ratio` is evaluated as `exp(ratio · ln(1 − α))` from the table `LN_CLEAR`:
 /// one `exp` an entry instead of a `pow`. On a Cortex-M3 without FPU, where both are
 /// soft-float, that took a turned view's setup from 2.97 M to 1.22 M instructions (the
 /// firmware's frame from 36.0 M to 34.2 M); on x86-64 the two cost about the same. A

@@ -225,7 +225,7 @@ pub fn warp_rows(
 
 /// [`warp_rows`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT, POPCNT), bit-identical:
 /// the pixels whose four taps lie inside the intermediate image are warped four at a
-/// time by [`inside_run_madd`] (brainsmall at 512², frames alternating with the
+/// time by `inside_run_madd` (brainsmall at 512², frames alternating with the
 /// 32-bit-lane version in one process: 1.83 → 1.61 ms a frame, the head 5.83 → 5.58).
 ///
 /// # Safety
@@ -248,7 +248,7 @@ pub fn warp_rows_x86_v3(
 }
 
 /// [`warp_rows`] compiled for x86-64-v4 (AVX-512 F/BW/VL/DQ/CD on top of x86-64-v3),
-/// bit-identical: the same kernel as [`warp_rows_x86_v3`], [`inside_run_madd`], which
+/// bit-identical: the same kernel as [`warp_rows_x86_v3`], `inside_run_madd`, which
 /// the compiler encodes with AVX-512's extra registers. An AVX-512 kernel of its own,
 /// four pixels a step in 32-bit lanes with 32-bit multiplies, was slower on a Zen 4
 /// than the 16-bit multiply-adds: warping the same frame alternately with both in one
@@ -539,7 +539,7 @@ fn warp_generic<T: Texel>(
     Ok(())
 }
 
-/// Most output rows [`warp_generic`] warps together (when its row buffer holds them).
+/// Most output rows `warp_generic` warps together (when its row buffer holds them).
 pub const TILE_ROWS: usize = 16;
 
 /// Output columns per tile of [`warp_generic`]'s inside pixels.
