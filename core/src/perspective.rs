@@ -90,14 +90,23 @@ impl RayGain {
     #[inline]
     fn row_term(&self, v: usize) -> i64 {
         let dv = (v as i64) * 16 - self.v0;
-        self.kb.saturating_mul(dv * dv).saturating_add(self.c)
+        // The centre may lie far outside the image (up to 10^15 in Q4, for a grid so
+        // anisotropic that the paraboloid is nearly flat along this axis, `kb` then
+        // 0): the square saturates instead of overflowing.
+        self.kb
+            .saturating_mul(dv.saturating_mul(dv))
+            .saturating_add(self.c)
     }
 
     /// Applies the gain of pixel `u` (row term `rv`) to a resampled sample.
     #[inline]
     fn apply(&self, s: &mut [u32; 4], u: usize, rv: i64) {
         let du = (u as i64) * 16 - self.u0;
-        let pos = (self.ka.saturating_mul(du * du).saturating_add(rv) >> 24)
+        let pos = (self
+            .ka
+            .saturating_mul(du.saturating_mul(du))
+            .saturating_add(rv)
+            >> 24)
             .clamp(0, (GAIN_LEVELS as i64 - 1) * 256);
         let (mut l, mut f) = ((pos >> 8) as usize, (pos & 255) as u32);
         if l >= GAIN_LEVELS - 1 {

@@ -100,6 +100,55 @@ fn replay_swv_shade_overflow() {
     }
 }
 
+/// The three run-length-encoded copies of a `grid` volume whose every voxel holds
+/// `value`, classified with constant opacity `opacity`.
+fn uniform_axes(
+    grid: &Grid,
+    value: u8,
+    opacity: f64,
+) -> Vec<(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)> {
+    let data = vec![value; grid.voxel_count()];
+    let pts = [(0.0, [opacity])];
+    let mut table = [0u8; 256];
+    OpacityTf::new(&pts).unwrap().build_table(&mut table);
+    let mut dense = vec![Voxel::default(); grid.voxel_count()];
+    classify::classify(grid, Scalars::U8(&data), &table, None, &mut dense).unwrap();
+    Axis::ALL
+        .iter()
+        .map(|&a| {
+            let sz = rle::measure(&dense, grid, a, 0).unwrap();
+            let mut r = vec![0; sz.runs];
+            let mut v = vec![Voxel::default(); sz.voxels];
+            let mut s = vec![ScanIndex::default(); sz.scans];
+            rle::encode(&dense, grid, a, 0, &mut r, &mut v, &mut s).unwrap();
+            (r, v, s)
+        })
+        .collect()
+}
+
+/// The copies of [`uniform_axes`] as the core's axis views.
+fn axes<'a>(grid: &Grid, store: &'a [(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)]) -> Vec<RleAxis<'a>> {
+    Axis::ALL
+        .iter()
+        .map(|&a| {
+            let (r, v, s) = &store[a as usize];
+            RleAxis::new(grid.dims, a, r, v, s).unwrap()
+        })
+        .collect()
+}
+
+/// Unlit compositing with `color`, no early ray termination, and `depth_cue`.
+fn unlit(color: &[[u16; 3]; 256], depth_cue: Option<DepthCue>) -> Settings<'_> {
+    Settings {
+        mode: Mode::Composite,
+        color,
+        lighting: None,
+        ert_threshold: 1.0,
+        depth_cue,
+        shadows: false,
+    }
+}
+
 /// Found by `properties::rendering_stays_within_opacity`: with depth cueing, an
 /// intermediate pixel at the corner of the volume's footprint nearest the viewer can end
 /// up with a colour above its alpha (here colour = 1.0, alpha = 0.55 in Q15), which the
@@ -118,43 +167,17 @@ fn replay_swv_shade_overflow() {
 fn depth_cue_keeps_colour_within_alpha() {
     let dims = [2, 2, 1];
     let grid = Grid::new(dims, [1.0; 3]).unwrap();
-    let data = vec![200u8; grid.voxel_count()];
-    let pts = [(0.0, [0.5])];
-    let mut table = [0u8; 256];
-    OpacityTf::new(&pts).unwrap().build_table(&mut table);
-    let mut dense = vec![Voxel::default(); grid.voxel_count()];
-    classify::classify(&grid, Scalars::U8(&data), &table, None, &mut dense).unwrap();
-    let store: Vec<_> = Axis::ALL
-        .iter()
-        .map(|&a| {
-            let sz = rle::measure(&dense, &grid, a, 0).unwrap();
-            let mut r = vec![0; sz.runs];
-            let mut v = vec![Voxel::default(); sz.voxels];
-            let mut s = vec![ScanIndex::default(); sz.scans];
-            rle::encode(&dense, &grid, a, 0, &mut r, &mut v, &mut s).unwrap();
-            (r, v, s)
-        })
-        .collect();
-    let ax: Vec<RleAxis<'_>> = Axis::ALL
-        .iter()
-        .map(|&a| {
-            let (r, v, s) = &store[a as usize];
-            RleAxis::new(dims, a, r, v, s).unwrap()
-        })
-        .collect();
+    let store = uniform_axes(&grid, 200, 0.5);
+    let ax = axes(&grid, &store);
     let mut vol = RleVolume::new(grid, [ax[0], ax[1], ax[2]]).unwrap();
     let color = [[ONE as u16; 3]; 256];
-    let settings = Settings {
-        mode: Mode::Composite,
-        color: &color,
-        lighting: None,
-        ert_threshold: 1.0,
-        depth_cue: Some(DepthCue {
+    let settings = unlit(
+        &color,
+        Some(DepthCue {
             front: 1.0,
             density: 16.0,
         }),
-        shadows: false,
-    };
+    );
     let cam = Camera {
         rotate_x: 57.96,
         rotate_y: 25.992,
@@ -176,4 +199,68 @@ fn depth_cue_keeps_colour_within_alpha() {
             "pixel {i}: colour above alpha {p:?}"
         );
     }
+}
+
+/// Found by the `swv_render` fuzz target after 160 000 inputs (10 minutes): a `.swv`
+/// header with spacings of 3.6e-304, 1.8e-304 and 2 (accepted: finite and positive),
+/// rendered in perspective at a field of view of 8°. So anisotropic a grid makes the
+/// per-ray opacity correction's paraboloid nearly flat along one axis, with its centre
+/// 4·10^304 pixels away; `RayGain` keeps that centre (clamped to 10^15 in Q4) and
+/// squared the pixel's distance from it in `i64`, which overflowed (core/src/
+/// perspective.rs, `row_term`; `apply` squares the other axis the same way). With
+/// overflow checks it panicked; in release it wrapped and picked an arbitrary level.
+/// The squares now saturate, and the coefficient they multiply is zero there anyway.
+#[test]
+fn perspective_gain_survives_a_far_paraboloid_centre() {
+    let grid = Grid::new(
+        [3, 1, 2],
+        [3.645561009778199e-304, 1.8227805065666987e-304, 2.0],
+    )
+    .unwrap();
+    let store = uniform_axes(&grid, 200, 0.5);
+    let ax = axes(&grid, &store);
+    let mut vol = RleVolume::new(grid, [ax[0], ax[1], ax[2]]).unwrap();
+    let color = [[ONE as u16; 3]; 256];
+    let settings = unlit(&color, None);
+    let cam = Camera {
+        rotate_x: 20.0,
+        rotate_y: -35.0,
+        width: 12,
+        height: 12,
+    };
+    let mut shade = Box::new(ShadeTable::UNSHADED);
+    let frame = Frame::perspective(&grid, &cam, 8.0, &settings, &mut shade).unwrap();
+    let p = frame.view.perspective.as_ref().unwrap();
+    assert!(
+        p.ratio_sq[4].abs() > 1e300,
+        "the centre is far: {:?}",
+        p.ratio_sq
+    );
+    let pix = 4 * view::max_intermediate_pixels(grid.dims);
+    let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
+    let mut rows = vec![[0u16; 4]; 1 << 12];
+    let mut out_row = vec![[0u8; 4]; cam.width];
+    let mut image = vec![[0u8; 4]; cam.width * cam.height];
+    let mut ws = render::Workspace {
+        pixels: &mut px,
+        links: &mut links,
+        rows: &mut rows,
+        out_row: &mut out_row,
+        shade: &mut shade,
+        shadow: None,
+    };
+    let mut sink = shearwarp_core::warp::FrameBuffer {
+        width: cam.width,
+        pixels: &mut image,
+    };
+    render::render_frame(&mut vol, &frame, &mut ws, &mut sink).unwrap();
+    for p in &image {
+        assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
+    }
+    // The volume is a segment 2 long and 10^-304 wide, so it covers no pixel: an empty
+    // image is the right one.
+    assert!(
+        image.iter().all(|p| p[3] == 0),
+        "a sliver of no width drew {image:?}"
+    );
 }
