@@ -208,12 +208,19 @@ pub fn load(path: &Path) -> Result<(RawVolume, VolumeMeta), LoadError> {
             (p, Box::new(BufReader::new(f)))
         }
     };
-    for _ in 0..line_skip {
+    // Stop at the end of the data: a skip of 10^18 lines must not spin through them.
+    for skipped in 0..line_skip {
         let mut l = Vec::new();
-        (&mut reader)
+        let n = (&mut reader)
             .take(MAX_HEADER)
             .read_until(b'\n', &mut l)
             .map_err(|e| io(&data_path, e))?;
+        if n == 0 {
+            return Err(bad(
+                path,
+                format!("line skip {line_skip} runs past the end of the data ({skipped} lines)"),
+            ));
+        }
     }
     let data = if gzip {
         let d = MultiGzDecoder::new(reader);
@@ -316,6 +323,11 @@ mod tests {
             (
                 "NRRD0004\ntype: uchar\ndimension: 3\nencoding: raw\n\n",
                 "no \"sizes\"",
+            ),
+            (
+                "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\
+                 line skip: 4444444444444444213\n\nab\ncd\n",
+                "line skip 4444444444444444213 runs past the end of the data (2 lines)",
             ),
             ("hello", "not a NRRD file"),
         ] {
