@@ -270,6 +270,21 @@ fn gzip_is_decoded_no_further_than_the_announced_size() {
     assert!(matches!(e, LoadError::CorruptGzip { .. }), "{e:?}");
 }
 
+/// A gzip NRRD's byte skip counts decompressed bytes: skipping 10^18 of them streams
+/// through a 64 MiB bomb without holding it (the reader once decoded skip and data
+/// into one buffer, then dropped the skipped part).
+#[test]
+fn a_gzip_nrrd_byte_skip_is_streamed_past() {
+    let dir = Dir::new("nrrd-skip");
+    let mut f = b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 2 3 4\nencoding: gzip\n\
+                  byte skip: 1000000000000000000\n\n"
+        .to_vec();
+    f.extend_from_slice(&gzip(&vec![0u8; 64 * MIB]));
+    let p = dir.write("bomb.nrrd", &f);
+    let e = rejected("64 MiB gzip NRRD skipping 10^18 bytes", &p, MIB);
+    assert!(e.to_string().contains("truncated"), "{e}");
+}
+
 #[test]
 fn oversized_sidecars_are_refused_after_one_mebibyte() {
     let dir = Dir::new("sidecar");

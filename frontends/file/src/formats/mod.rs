@@ -285,20 +285,31 @@ pub(crate) fn check_spacing(path: &Path, s: [f64; 3]) -> Result<[f64; 3], LoadEr
 /// Reads at most `cap` bytes from `r`.
 pub(crate) fn read_capped(path: &Path, r: impl Read, cap: u64) -> Result<Vec<u8>, LoadError> {
     let mut v = Vec::new();
-    r.take(cap).read_to_end(&mut v).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::InvalidInput
-            || e.kind() == std::io::ErrorKind::InvalidData
-            || e.kind() == std::io::ErrorKind::UnexpectedEof
-        {
-            bad(path, format!("corrupt compressed data: {e}"))
-        } else {
-            LoadError::Io {
-                path: path.to_path_buf(),
-                source: e,
-            }
-        }
-    })?;
+    r.take(cap)
+        .read_to_end(&mut v)
+        .map_err(|e| read_error(path, e))?;
     Ok(v)
+}
+
+/// Reads and drops up to `n` bytes of `r` (fewer at its end), without holding them.
+pub(crate) fn skip_bytes(path: &Path, r: &mut impl Read, n: u64) -> Result<(), LoadError> {
+    std::io::copy(&mut r.take(n), &mut std::io::sink()).map_err(|e| read_error(path, e))?;
+    Ok(())
+}
+
+/// A read error of `path`: a decoder's complaint names the data as corrupt.
+fn read_error(path: &Path, e: std::io::Error) -> LoadError {
+    if e.kind() == std::io::ErrorKind::InvalidInput
+        || e.kind() == std::io::ErrorKind::InvalidData
+        || e.kind() == std::io::ErrorKind::UnexpectedEof
+    {
+        bad(path, format!("corrupt compressed data: {e}"))
+    } else {
+        LoadError::Io {
+            path: path.to_path_buf(),
+            source: e,
+        }
+    }
 }
 
 /// Reads `need_bytes` of uncompressed voxel data from `reader` after skipping `skip`
@@ -327,11 +338,7 @@ pub(crate) fn read_raw_block(
         std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(len - need_bytes)).map_err(io)?;
         read_capped(data_path, f, need_bytes)
     } else {
-        std::io::copy(
-            &mut (&mut reader).take(skip.max(0) as u64),
-            &mut std::io::sink(),
-        )
-        .map_err(io)?;
+        skip_bytes(data_path, &mut reader, skip.max(0) as u64)?;
         read_capped(data_path, reader, need_bytes)
     }
 }

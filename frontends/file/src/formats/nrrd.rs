@@ -3,7 +3,8 @@
 //! dropped). Spacing comes from `spacings`, or from the lengths of `space directions`;
 //! with `space directions` in a `space` of LPS or RAS the axes are reordered toward LPS.
 
-use super::{bad, check_spacing, dims_from, orient_lps, read_capped, read_raw_block, stem_of};
+use super::{bad, check_spacing, dims_from, orient_lps, read_capped, read_raw_block};
+use super::{skip_bytes, stem_of};
 use super::{volume_from_bytes, DataType, VolumeMeta};
 use crate::volume::{LoadError, RawVolume};
 use flate2::bufread::MultiGzDecoder;
@@ -223,12 +224,11 @@ pub fn load(path: &Path) -> Result<(RawVolume, VolumeMeta), LoadError> {
         }
     }
     let data = if gzip {
-        let d = MultiGzDecoder::new(reader);
-        let mut v = read_capped(&data_path, d, need_bytes + byte_skip.max(0) as u64)?;
-        if byte_skip > 0 {
-            v.drain(..(byte_skip as usize).min(v.len()));
-        }
-        v
+        // The byte skip counts decompressed bytes: stream past them rather than hold
+        // them (a small file can decompress to gigabytes).
+        let mut d = MultiGzDecoder::new(reader);
+        skip_bytes(&data_path, &mut d, byte_skip.max(0) as u64)?;
+        read_capped(&data_path, d, need_bytes)?
     } else {
         read_raw_block(&data_path, reader, byte_skip, need_bytes)?
     };
@@ -294,6 +294,22 @@ mod tests {
         let (v, _) = load(&hd).unwrap();
         assert_eq!(v.spacing, [1.0, 2.0, 3.0]);
         assert_eq!(v.voxels, Voxels::U16((0..24).collect()));
+        // A byte skip counts decompressed bytes; one past the end leaves nothing to read.
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        e.write_all(b"abc").unwrap();
+        e.write_all(&data).unwrap();
+        std::fs::write(hd.with_file_name(&raw_name), e.finish().unwrap()).unwrap();
+        let skipped = |skip: &str| {
+            let h = format!("NRRD0004\ntype: uint16\ndimension: 3\nsizes: 2 3 4\nendian: big\nencoding: gzip\nbyte skip: {skip}\ndata file: {raw_name}\n");
+            std::fs::write(&hd, h).unwrap();
+            load(&hd)
+        };
+        assert_eq!(
+            skipped("3").unwrap().0.voxels,
+            Voxels::U16((0..24).collect())
+        );
+        let e = skipped("4000000000000000000").unwrap_err().to_string();
+        assert!(e.contains("truncated"), "{e}");
         // Truncated detached data.
         std::fs::write(hd.with_file_name(&raw_name), b"\x1f\x8b junk").unwrap();
         let e = load(&hd).unwrap_err().to_string();
