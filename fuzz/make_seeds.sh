@@ -6,6 +6,7 @@
 #                  with different shading, lights and thresholds (u8 and u16 sources)
 #   sidecar_load/  FLAGS + sidecar JSON + NUL + data, see fuzz_targets/sidecar_load.rs
 #   tfspec/        transfer-function, vector and size strings
+#   tffile/        transfer-function files (JSON schema of frontends/file/src/tffile.rs)
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(dirname "$here")"
@@ -16,7 +17,7 @@ trap 'rm -rf "$tmp"' EXIT
 cargo build --release -q -p shearwarp-file --manifest-path "$root/Cargo.toml"
 cli="$root/target/release/shearwarp"
 
-mkdir -p "$seeds/swv_render" "$seeds/sidecar_load" "$seeds/tfspec"
+mkdir -p "$seeds/swv_render" "$seeds/sidecar_load" "$seeds/tfspec" "$seeds/tffile"
 
 # Tiny volumes with sidecars, cut from the fixtures.
 python3 - "$root/fixtures" "$tmp" <<'PY'
@@ -112,5 +113,17 @@ done <<'TXT'
  1 X 16384 
 0:0.2,40:1
 0:0,200:0.3,1059:1
+TXT
+# Transfer-function files: each unit, mode and optional field of the schema.
+i=0
+while IFS= read -r line; do
+    printf '%s' "$line" >"$seeds/tffile/t$i.json"
+    i=$((i + 1))
+done <<'TXT'
+{"version": 1, "opacity": [[0, 0], [60, 0], [120, 0.4], [255, 0.9]]}
+{"version": 1, "units": "raw", "mode": "composite", "shading": true, "opacity": [[0, 0], [60, 0], [120, 0.4], [255, 0.9]], "color": [[0, "#805040"], [255, "#fffff0"]], "gradient_opacity": [[0, 0.2], [40, 1]]}
+{"version": 1, "units": "hu", "opacity": [[150, 0], [300, 0.3], [1500, 0.9]], "color": [[150, "#a06040"], [400, "#f0e0c0"], [1500, "#ffffff"]]}
+{"version": 1, "units": "normalized", "mode": "mip", "opacity": [[0, 0], [0.15, 0], [0.4, 0.1], [1, 0.8]]}
+{"version": 1, "units": "normalized", "shading": false, "opacity": [[0.2, 0], [0.5, 1e-3], [0.50000001, 1]], "gradient_opacity": [[0, 0], [1e9, 1]]}
 TXT
 echo "seeds written to $seeds"
