@@ -1,8 +1,10 @@
 //! The medical-format readers of `shearwarp_file::volume` (DICOM, NIfTI, NRRD,
-//! MetaImage, VolPack `.den`), through the same dispatch `shearwarp render` uses.
+//! MetaImage, VolPack `.den`), through the same dispatch `shearwarp render` uses, and the
+//! CLI's whole-file `.swv` reader (`shearwarp_file::swvfile::read_swv`).
 //!
 //! Input layout: `KIND BYTES`. KIND picks the file name the bytes are written under in a
-//! private scratch directory (`v.dcm`, `v.nii`, `v.nii.gz`, `v.nrrd`, `v.mha`, `v.den`),
+//! private scratch directory (`v.dcm`, `v.nii`, `v.nii.gz`, `v.nrrd`, `v.mha`, `v.den`,
+//! `v.swv`),
 //! so the extension-based dispatch reaches every reader; gzip-named inputs are
 //! compressed first so the fuzzer gets past the gzip layer. Headers that could name another file (NRRD
 //! detached data, MetaImage `ElementDataFile`) can only name files in the scratch
@@ -18,7 +20,9 @@ use std::sync::OnceLock;
 use libfuzzer_sys::fuzz_target;
 use shearwarp_file::volume::{self, Prefer, Voxels};
 
-const NAMES: [&str; 6] = ["v.dcm", "v.nii", "v.nii.gz", "v.nrrd", "v.mha", "v.den"];
+const NAMES: [&str; 7] = [
+    "v.dcm", "v.nii", "v.nii.gz", "v.nrrd", "v.mha", "v.den", "v.swv",
+];
 
 fn scratch() -> &'static PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
@@ -42,6 +46,13 @@ fuzz_target!(|input: &[u8]| {
         let _ = std::fs::remove_file(entry.path());
     }
     let path = dir.join(name);
+    // A `.swv` carries CRCs that mutation almost never keeps right: recompute them, so
+    // that the reader's structural checks see the mutated bytes.
+    let mut bytes = bytes.to_vec();
+    if name.ends_with(".swv") {
+        shearwarp_fuzz::fix_checksums(&mut bytes);
+    }
+    let bytes = &bytes[..];
     let data = if name.ends_with(".gz") {
         let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
         let _ = enc.write_all(bytes);
@@ -50,6 +61,13 @@ fuzz_target!(|input: &[u8]| {
         bytes.to_vec()
     };
     if std::fs::write(&path, &data).is_err() {
+        return;
+    }
+    if name.ends_with(".swv") {
+        // An accepted file must give a volume the core renders from.
+        if let Ok((enc, _look)) = shearwarp_file::swvfile::read_swv(&path) {
+            enc.volume().expect("an accepted .swv is a valid volume");
+        }
         return;
     }
     if let Ok(v) = volume::load_volume_with(&path, Prefer::U8) {
