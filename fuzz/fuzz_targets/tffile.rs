@@ -8,7 +8,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use shearwarp_core::classify::{ColorTf, GradientTf, OpacityTf};
+use shearwarp_core::classify::{GradientTf, OpacityTf};
+use shearwarp_file::scene;
 use shearwarp_file::tffile::{TfSpec, ValueScale};
 use std::path::Path;
 
@@ -60,12 +61,8 @@ fuzz_target!(|data: &[u8]| {
             }
         }
         if let Some(c) = &r.color {
-            let pts: Vec<(f64, [f64; 3])> = c
-                .iter()
-                .map(|&(v, rgb)| (v, rgb.map(|x| x as f64 / 255.0)))
-                .collect();
-            if let Ok(tf) = ColorTf::new(&pts) {
-                let _ = tf.build_table(scale.range);
+            if let Err(e) = scene::color_table(c, scale.range) {
+                let _ = e.to_string();
             }
         }
         if let Some(g) = &r.gradient_opacity {

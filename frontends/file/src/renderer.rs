@@ -587,11 +587,7 @@ impl Renderer {
     /// As [`Renderer::warp`], into `frame` (resized to the image; every pixel is written).
     pub fn warp_into(&self, view: &Factorization, frame: &mut Vec<[u8; 4]>) -> Result<(), Error> {
         let [iw, ih] = view.intermediate;
-        let pixels = self.pixels.get(..iw * ih).ok_or(Error::BufferTooSmall {
-            what: "intermediate pixels",
-            needed: iw * ih,
-            got: self.pixels.len(),
-        })?;
+        let pixels = self.held_pixels(iw, ih)?;
         let [w, h] = view.image;
         frame.resize(w * h, [0; 4]);
         if w == 0 || h == 0 {
@@ -671,11 +667,7 @@ impl Renderer {
     /// gives the 8-bit frame within 1.
     pub fn warp16(&self, view: &Factorization) -> Result<Vec<[u16; 4]>, Error> {
         let [iw, ih] = view.intermediate;
-        let px = self.pixels.get(..iw * ih).ok_or(Error::BufferTooSmall {
-            what: "intermediate pixels",
-            needed: iw * ih,
-            got: self.pixels.len(),
-        })?;
+        let px = self.held_pixels(iw, ih)?;
         let [w, h] = view.image;
         let q15 = shearwarp_core::fixed::ONE as u64;
         let mut out = vec![[0u16; 4]; w * h];
@@ -688,6 +680,15 @@ impl Renderer {
             Ok(())
         })?;
         Ok(out)
+    }
+
+    /// The held intermediate image's first `iw×ih` pixels, as the warps read them.
+    fn held_pixels(&self, iw: usize, ih: usize) -> Result<&[Rgba], Error> {
+        self.pixels.get(..iw * ih).ok_or(Error::BufferTooSmall {
+            what: "intermediate pixels",
+            needed: iw * ih,
+            got: self.pixels.len(),
+        })
     }
 
     /// The columns of each scanline of the `iw×ih` intermediate image `px` that hold
