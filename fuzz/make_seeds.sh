@@ -7,6 +7,8 @@
 #   sidecar_load/  FLAGS + sidecar JSON + NUL + data, see fuzz_targets/sidecar_load.rs
 #   tfspec/        transfer-function, vector and size strings
 #   tffile/        transfer-function files (JSON schema of frontends/file/src/tffile.rs)
+#   dense_render/  unclassified volumes with tables, lighting, view and mode (the byte
+#                  layout of fuzz_targets/dense_render.rs)
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(dirname "$here")"
@@ -126,4 +128,42 @@ done <<'TXT'
 {"version": 1, "units": "normalized", "mode": "mip", "opacity": [[0, 0], [0.15, 0], [0.4, 0.1], [1, 0.8]]}
 {"version": 1, "units": "normalized", "shading": false, "opacity": [[0.2, 0], [0.5, 1e-3], [0.50000001, 1]], "gradient_opacity": [[0, 0], [1e9, 1]]}
 TXT
+# Dense volumes (the byte layout of fuzz_targets/dense_render.rs): tame sides and spacing,
+# a ramp opacity and a warm colour table in Q15, lighting or none, a view, each mode,
+# then a ball's voxels.
+mkdir -p "$seeds/dense_render"
+python3 - "$seeds/dense_render" <<'PY'
+import struct, sys
+out = sys.argv[1]
+
+def seed(name, side, spacing, wide, gradient, lights, angles, size, mode, iso, ert):
+    b = bytes([side - 1] * 3) + bytes(spacing) + bytes([wide, gradient])
+    for v in range(256):
+        a = 0 if v < 60 else min(32768, (v - 60) * 200)
+        c = [min(32768, 128 * v + 8000), min(32768, 100 * v), min(32768, 90 * v)]
+        b += struct.pack("<4H", a, *c)
+    b += bytes([lights])
+    if lights:
+        b += bytes([13, 45, 20, 100])  # ka, kd, ks (/64), shininess
+        for _ in range(lights):
+            b += bytes([180, 170, 240, 255, 255, 255])  # direction (+120 offset), colour
+    b += bytes(angles) + bytes([size - 1, size - 1, mode])
+    if mode == 2:
+        b += bytes([iso])
+    b += bytes([ert])
+    c = (side - 1) / 2
+    for z in range(side):
+        for y in range(side):
+            for x in range(side):
+                r = ((x - c) ** 2 + (y - c) ** 2 + (z - c) ** 2) ** 0.5
+                v = max(0, min(255, int(255 - 40 * r)))
+                b += struct.pack("<H", v * 16) if wide else bytes([v])
+    open(f"{out}/{name}", "wb").write(b)
+
+seed("post", 9, [3, 3, 5], 0, 0, 1, [8, 12], 10, 0, 0, 242)
+seed("preint", 8, [3, 5, 3], 1, 1, 2, [30, 50], 12, 1, 0, 255)
+seed("iso", 7, [3, 3, 3], 0, 0, 1, [5, 90], 9, 2, 120, 250)
+seed("unlit", 12, [3, 3, 3], 0, 1, 0, [0, 0], 12, 0, 0, 255)
+PY
+
 echo "seeds written to $seeds"

@@ -3,7 +3,7 @@
 #
 #   fuzz/run.sh SECONDS [TARGET...]
 #
-# Targets: swv_render, sidecar_load, tfspec, formats_load, tffile. Needs the nightly toolchain and cargo-fuzz
+# Targets: swv_render, sidecar_load, tfspec, formats_load, tffile, dense_render. Needs the nightly toolchain and cargo-fuzz
 # (`cargo install cargo-fuzz`). Builds with debug assertions and overflow checks, so an
 # integer overflow is a crash too. The growing corpus lives in fuzz/corpus/TARGET
 # (ignored by git; fuzz/seeds/TARGET, checked in, is read as well), crashes land in
@@ -25,7 +25,7 @@ fi
 secs="$1"
 shift
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(swv_render sidecar_load tfspec formats_load tffile)
+[ ${#targets[@]} -gt 0 ] || targets=(swv_render sidecar_load tfspec formats_load tffile dense_render)
 jobs="${FUZZ_JOBS:-1}"
 san="${FUZZ_SANITIZER:-none}"
 
@@ -36,6 +36,7 @@ max_len() {
     tfspec) echo 256 ;;
     formats_load) echo 8192 ;;
     tffile) echo 4096 ;;
+    dense_render) echo 8192 ;;
     *) echo 4096 ;;
     esac
 }

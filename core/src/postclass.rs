@@ -169,10 +169,11 @@ pub fn build_preintegration(
     // Opacity per sub-step per scalar, from the 8-bit-indexed correction of the Q15 TF.
     let mut a_sub = [0u32; 256];
     for (v, a) in a_sub.iter_mut().enumerate() {
+        // The correction of the nearest 8-bit opacity, as `render` does per slice.
+        // Interpolating between the two nearest entries instead changed the golden
+        // cases' PSNR by 0.00 to −0.02 dB: not worth a second lookup.
         let a8 = ((opacity[v] as u32 * 255 + (1 << 14)) >> 15).min(255) as usize;
-        // Interpolate the correction linearly in the 8-bit opacity for Q15 precision.
-        let lo = sub[a8] as u32;
-        *a = lo;
+        *a = sub[a8] as u32;
     }
     for f in 0..256u32 {
         for b in 0..256u32 {

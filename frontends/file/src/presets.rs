@@ -22,8 +22,9 @@ pub struct Preset {
     pub color: &'static [(f64, [u8; 3])],
 }
 
-/// Warm grey colours of the file frontend's default, over the normalised range.
-const WARM: &[(f64, [u8; 3])] = &[
+/// Warm grey colours of the file frontend's default, over the normalised range (the
+/// viewer's presets use them too).
+pub const WARM: &[(f64, [u8; 3])] = &[
     (0.0, [0x80, 0x50, 0x40]),
     (0.5, [0xe0, 0xb0, 0x90]),
     (1.0, [0xff, 0xff, 0xf0]),

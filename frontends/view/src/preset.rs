@@ -8,6 +8,8 @@
 //! `s = 0` sits at `level − window/2`, `s = 1` at `level + window/2`. Colours stay put
 //! when the window moves.
 
+// Warm grey colours: the file frontend's default, so both frontends' presets share them.
+use shearwarp_file::presets::WARM;
 use shearwarp_file::tffile::{TfSpec, Units};
 use shearwarp_file::volume::RawVolume;
 
@@ -26,13 +28,6 @@ pub struct Preset {
     /// Colour `(normalised value, rgb)`, strictly increasing.
     pub color: &'static [(f64, [u8; 3])],
 }
-
-/// Warm grey colours of the file frontend's default.
-const WARM: &[(f64, [u8; 3])] = &[
-    (0.0, [0x80, 0x50, 0x40]),
-    (0.5, [0xe0, 0xb0, 0x90]),
-    (1.0, [0xff, 0xff, 0xf0]),
-];
 
 /// The presets, in the order the number keys select them.
 pub const PRESETS: [Preset; 5] = [
