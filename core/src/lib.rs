@@ -17,6 +17,78 @@
 //! per-voxel and per-pixel loop is integer arithmetic in Q15 fixed point ([`fixed`]).
 //! All memory is owned by the caller; every size is stated up front and a buffer that is
 //! too small is an [`Error`], never a panic.
+//!
+//! # Example
+//!
+//! A 16³ ball classified, encoded and rendered to a 32×32 RGBA image, every buffer a
+//! fixed-size array (on a microcontroller they would be `static`s; the firmware in
+//! `frontends/mcu` streams a `.swv` file instead of encoding on the device).
+//!
+//! ```
+//! use shearwarp_core::classify::{self, ColorTf, Grid, OpacityTf, Scalars, Voxel};
+//! use shearwarp_core::composite::{self, Mode};
+//! use shearwarp_core::render::{render, Settings, StaticWorkspace};
+//! use shearwarp_core::rle::{self, Axis, ScanIndex};
+//! use shearwarp_core::source::RleVolume;
+//! use shearwarp_core::view::{self, Camera};
+//! use shearwarp_core::warp::FrameBuffer;
+//!
+//! const N: usize = 16;
+//! const DIMS: [usize; 3] = [N; 3];
+//! const VOXELS: usize = N * N * N;
+//!
+//! // Scalars that fall off with the distance from the centre, x fastest.
+//! let mut scalars = [0u8; VOXELS];
+//! for (i, s) in scalars.iter_mut().enumerate() {
+//!     let d = [i % N, i / N % N, i / (N * N)].map(|c| c as f64 - 7.5);
+//!     let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+//!     *s = (255.0 - 30.0 * r).max(0.0) as u8;
+//! }
+//! let grid = Grid::new(DIMS, [1.0; 3])?;
+//!
+//! // Transfer functions as lookup tables: opacity rises from value 100, colour runs
+//! // from dark red to white.
+//! let mut opacity = [0u8; 256];
+//! OpacityTf::new(&[(100.0, [0.0]), (255.0, [0.8])])?.build_table(&mut opacity);
+//! let color = ColorTf::new(&[(0.0, [0.5, 0.1, 0.1]), (255.0, [1.0; 3])])?.build_table((0, 255));
+//! let mut voxels = [Voxel::default(); VOXELS];
+//! classify::classify(&grid, Scalars::U8(&scalars), &opacity, None, &mut voxels)?;
+//!
+//! // One run-length-encoded copy per principal axis; voxels of opacity 0 are dropped.
+//! // (`rle::measure` gives the exact sizes; these are enough for any 16³ volume.)
+//! let mut runs = [[0u8; 2 * VOXELS]; 3];
+//! let mut kept = [[Voxel::default(); VOXELS]; 3];
+//! let mut scans = [[ScanIndex::default(); N * N + 1]; 3];
+//! let [rx, ry, rz] = &mut runs;
+//! let [vx, vy, vz] = &mut kept;
+//! let [sx, sy, sz] = &mut scans;
+//! let x = rle::encode(&voxels, &grid, Axis::X, 0, rx, vx, sx)?;
+//! let y = rle::encode(&voxels, &grid, Axis::Y, 0, ry, vy, sy)?;
+//! let z = rle::encode(&voxels, &grid, Axis::Z, 0, rz, vz, sz)?;
+//! let mut volume = RleVolume::new(grid, [x, y, z])?;
+//!
+//! // Buffers sized for this volume and image, then one frame.
+//! const PIX: usize = view::max_intermediate_pixels(DIMS);
+//! const ROW: usize = composite::row_buffer_len(N);
+//! let mut work = StaticWorkspace::<PIX, ROW, 32>::new();
+//! let mut image = [[0u8; 4]; 32 * 32];
+//! let settings = Settings {
+//!     mode: Mode::Composite,
+//!     color: &color,
+//!     lighting: None,
+//!     ert_threshold: 0.95,
+//!     depth_cue: None,
+//!     shadows: false,
+//! };
+//! let camera = Camera { rotate_x: 20.0, rotate_y: 30.0, width: 32, height: 32 };
+//! let mut sink = FrameBuffer { width: 32, pixels: &mut image };
+//! render(&mut volume, &camera, &settings, &mut work.workspace(), &mut sink)?;
+//!
+//! // The ball covers the centre; the corners are background.
+//! assert!(image[16 * 32 + 16][3] > 200);
+//! assert_eq!(image[0], [0; 4]);
+//! # Ok::<(), shearwarp_core::Error>(())
+//! ```
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
