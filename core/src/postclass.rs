@@ -275,7 +275,8 @@ fn lerp_color(t: &ColorTable, s: u32) -> [u32; 3] {
     [0, 1, 2].map(|c| (a[c] as u32 * (256 - f) + b[c] as u32 * f + 128) >> 8)
 }
 
-/// Renders one frame of a dense classified-free volume.
+/// Renders one frame of a dense classified-free volume: [`prepare`], [`composite_band`]
+/// over the whole intermediate image, then the warp.
 #[allow(clippy::too_many_arguments)]
 pub fn render(
     grid: &Grid,
@@ -287,14 +288,72 @@ pub fn render(
     sink: &mut impl PixelSink,
 ) -> Result<(), Error> {
     need("voxels", grid.voxel_count(), voxels.len())?;
-    need("bricks", brick_count(grid.dims), bricks.len())?;
     need("out row", camera.width, ws.out_row.len())?;
+    let tables = PostTables {
+        visible: &mut *ws.visible,
+        preint: &mut *ws.preint,
+        shade: &mut *ws.shade,
+    };
+    let frame = prepare(grid, bricks, camera, settings, tables)?;
+    let [iw, ih] = frame.view.intermediate;
+    let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
+    composite_band(&frame, voxels, &mut img)?;
+    warp::warp(img.pixels(), &frame.view, ws.out_row, sink)
+}
+
+/// The per-frame tables [`prepare`] fills, caller-owned (see [`PostWorkspace`] for
+/// their sizes).
+pub struct PostTables<'a> {
+    /// One flag per brick ([`brick_count`]).
+    pub visible: &'a mut [bool],
+    /// Pre-integration table, 65 536 entries (only for [`PostMode::PreIntegrated`]).
+    pub preint: &'a mut [Rgba],
+    /// Shading table.
+    pub shade: &'a mut ShadeTable,
+}
+
+/// One frame's view and the tables its bands read: what [`prepare`] computes once, so
+/// that several threads can composite disjoint bands of scanlines
+/// ([`composite_band`]) into memory of their own, as with the classified volumes
+/// (Lacroute 1995, ch. 6). Every scanline's pixels depend on that scanline alone, so any
+/// split gives the image one band gives.
+pub struct PostFrame<'a> {
+    /// The factored view.
+    pub view: Factorization,
+    grid: Grid,
+    mode: PostMode,
+    color: &'a ColorTable,
+    /// Post-classified opacity per quantised scalar, corrected for the slice distance.
+    corr: [u16; 256],
+    preint: &'a [Rgba],
+    shade: &'a ShadeTable,
+    visible: &'a [bool],
+    /// Early-ray-termination opacity, Q15 (above one: never).
+    ert: u32,
+    /// The isovalue, Q8.
+    iso_q8: u32,
+}
+
+/// Validates `settings`, factors the view and fills `tables` for one frame.
+pub fn prepare<'a>(
+    grid: &Grid,
+    bricks: &[(u8, u8)],
+    camera: &Camera,
+    settings: &PostSettings<'a>,
+    tables: PostTables<'a>,
+) -> Result<PostFrame<'a>, Error> {
+    need("bricks", brick_count(grid.dims), bricks.len())?;
     let view = Factorization::new(grid, camera)?;
+    let PostTables {
+        visible,
+        preint,
+        shade,
+    } = tables;
     match settings.lighting {
-        Some(l) => ws.shade.fill(l, &view.rotation)?,
-        None => *ws.shade = ShadeTable::UNSHADED,
+        Some(l) => shade.fill(l, &view.rotation)?,
+        None => *shade = ShadeTable::UNSHADED,
     }
-    classify_bricks(bricks, settings.opacity, settings.mode, ws.visible)?;
+    classify_bricks(bricks, settings.opacity, settings.mode, visible)?;
     if !(settings.ert_threshold > 0.0 && settings.ert_threshold <= 1.0) {
         return Err(Error::BadParameter {
             reason: "early-ray-termination threshold must be in (0, 1]",
@@ -313,7 +372,7 @@ pub fn render(
         *c = c8[a8];
     }
     if settings.mode == PostMode::PreIntegrated {
-        build_preintegration(settings.opacity, settings.color, view.step_ratio, ws.preint)?;
+        build_preintegration(settings.opacity, settings.color, view.step_ratio, preint)?;
     }
     let iso_q8 = match settings.mode {
         PostMode::Isosurface(v) => {
@@ -326,9 +385,38 @@ pub fn render(
         }
         _ => 0,
     };
+    Ok(PostFrame {
+        view,
+        grid: *grid,
+        mode: settings.mode,
+        color: settings.color,
+        corr,
+        preint,
+        shade,
+        visible,
+        ert,
+        iso_q8,
+    })
+}
 
-    let [iw, ih] = view.intermediate;
-    let mut img = Intermediate::new(iw, ih, ws.pixels, ws.links)?;
+/// Composites every slab of `frame` into the scanlines `img` holds (the whole
+/// intermediate image, or a band of it: [`Intermediate::band`]); `voxels` is the volume
+/// `frame` was prepared for.
+pub fn composite_band(
+    frame: &PostFrame<'_>,
+    voxels: &[Voxel],
+    img: &mut Intermediate<'_>,
+) -> Result<(), Error> {
+    let (grid, view) = (&frame.grid, &frame.view);
+    need("voxels", grid.voxel_count(), voxels.len())?;
+    if [img.width(), img.height()] != view.intermediate {
+        return Err(Error::BadParameter {
+            reason: "band is not of the frame's intermediate image",
+        });
+    }
+    let (ert, iso_q8, corr) = (frame.ert, frame.iso_q8, &frame.corr);
+    let (row0, rows) = (img.first_row(), img.rows());
+    let [iw, _] = view.intermediate;
     let p = view.axis.permutation();
     let ostride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
     let vol = Dense {
@@ -342,13 +430,13 @@ pub fn render(
     let bstride = [bstride_obj[p[0]], bstride_obj[p[1]], bstride_obj[p[2]]];
     let nk = view.dims[2];
     let (ni, nj) = (view.dims[0] as i64, view.dims[1] as i64);
-    let slabs = match settings.mode {
+    let slabs = match frame.mode {
         PostMode::PostClassified => nk,
         _ => nk.saturating_sub(1),
     };
     for idx in 0..slabs {
         let kf = view.slice_at(idx);
-        let kb = if settings.mode == PostMode::PostClassified {
+        let kb = if frame.mode == PostMode::PostClassified {
             kf
         } else {
             view.slice_at(idx + 1)
@@ -358,7 +446,7 @@ pub fn render(
         let wf = fixed::bilinear_weights(fu.f, fv.f);
         let wb = fixed::bilinear_weights(bu.f, bv.f);
         let bk = (kf / BRICK).min(nb[2] - 1);
-        for v in 0..ih {
+        for v in row0..row0 + rows {
             let jt = v as i64 - fv.n as i64 - 1;
             if jt < -1 || jt >= view.dims[1] as i64 {
                 continue;
@@ -369,7 +457,7 @@ pub fn render(
             let bj = (((jt + 1).max(0) as usize) / BRICK).min(nb[1] - 1);
             let brow = bk * bstride[2] + bj * bstride[1];
             for bi in 0..nb[0] {
-                if !ws
+                if !frame
                     .visible
                     .get(brow + bi * bstride[0])
                     .copied()
@@ -387,7 +475,7 @@ pub fn render(
                 };
                 let u0 = (r0 as i64 + fu.n as i64).clamp(0, iw as i64) as usize;
                 let u1 = (r1 as i64 + fu.n as i64).clamp(0, iw as i64) as usize;
-                let (pixels, opaque) = img.scanline_mut(v);
+                let (pixels, opaque) = img.scanline_mut(v - row0);
                 let mut u = u0;
                 while u < u1 {
                     if crate::opaque::is_opaque(opaque, u) {
@@ -401,24 +489,28 @@ pub fn render(
                         u += 1;
                         continue;
                     }
-                    let f = sample(&vol, ws.shade, il, jt, kf, &wf);
+                    let f = sample(&vol, frame.shade, il, jt, kf, &wf);
                     let Some(px) = pixels.get_mut(u) else {
                         break;
                     };
-                    let (rgb, a) = match settings.mode {
+                    let (rgb, a) = match frame.mode {
                         PostMode::PostClassified => {
-                            let a = lerp_table(&corr, f.s);
-                            let c = lerp_color(settings.color, f.s);
+                            let a = lerp_table(corr, f.s);
+                            let c = lerp_color(frame.color, f.s);
                             let rgb = [0, 1, 2]
                                 .map(|ch| (fixed::mul(c[ch], f.d[ch]) + f.sp[ch]).min(ONE));
                             (rgb.map(|x| fixed::mul(x, a)), a)
                         }
                         PostMode::PreIntegrated => {
                             let ilb = u as i64 - bu.n as i64 - 1;
-                            let b = sample(&vol, ws.shade, ilb, jb, kb, &wb);
+                            let b = sample(&vol, frame.shade, ilb, jb, kb, &wb);
                             let fi = ((f.s + 128) >> 8).min(255) as usize;
                             let bi_ = ((b.s + 128) >> 8).min(255) as usize;
-                            let e = ws.preint.get(fi * 256 + bi_).copied().unwrap_or_default();
+                            let e = frame
+                                .preint
+                                .get(fi * 256 + bi_)
+                                .copied()
+                                .unwrap_or_default();
                             let a = e[3] as u32;
                             let rgb = [0, 1, 2].map(|ch| {
                                 let d = (f.d[ch] + b.d[ch]) / 2;
@@ -429,7 +521,7 @@ pub fn render(
                         }
                         PostMode::Isosurface(_) => {
                             let ilb = u as i64 - bu.n as i64 - 1;
-                            let b = sample(&vol, ws.shade, ilb, jb, kb, &wb);
+                            let b = sample(&vol, frame.shade, ilb, jb, kb, &wb);
                             let (lo, hi) = (f.s.min(b.s), f.s.max(b.s));
                             if iso_q8 < lo || iso_q8 > hi || lo == hi {
                                 u += 1;
@@ -439,7 +531,7 @@ pub fn render(
                             let t = ((iso_q8 as i64 - f.s as i64) * ONE as i64
                                 / (b.s as i64 - f.s as i64))
                                 .clamp(0, ONE as i64) as u32;
-                            let c = lerp_color(settings.color, iso_q8);
+                            let c = lerp_color(frame.color, iso_q8);
                             let rgb = [0, 1, 2].map(|ch| {
                                 let d = fixed::mul(f.d[ch], ONE - t) + fixed::mul(b.d[ch], t);
                                 let s = fixed::mul(f.sp[ch], ONE - t) + fixed::mul(b.sp[ch], t);
@@ -463,5 +555,5 @@ pub fn render(
             }
         }
     }
-    warp::warp(img.pixels(), &view, ws.out_row, sink)
+    Ok(())
 }

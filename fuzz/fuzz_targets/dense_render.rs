@@ -9,13 +9,15 @@
 //! coefficients, which `Lighting::validate` must refuse or the frame must survive), the
 //! view's angles (any `f64` bits, some of the time), the image size, the mode, the
 //! isovalue and the early-termination threshold. Errors are fine; panics, overflows
-//! (the targets build with overflow checks) and a colour above its alpha are not.
+//! (the targets build with overflow checks) and a colour above its alpha are not, nor
+//! bands of scanlines (`postclass::composite_band`, as the threads composite them) that
+//! differ from the whole intermediate image.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
-use shearwarp_core::composite::Rgba;
-use shearwarp_core::postclass::{self, PostMode, PostSettings, PostWorkspace};
+use shearwarp_core::composite::{Intermediate, Rgba};
+use shearwarp_core::postclass::{self, PostMode, PostSettings, PostTables, PostWorkspace};
 use shearwarp_core::shade::{Light, Lighting, ShadeTable};
 use shearwarp_core::view::{self, Camera};
 use shearwarp_core::warp::FrameBuffer;
@@ -196,9 +198,38 @@ fn frame(
         pixels: &mut image,
     };
     let ok = postclass::render(grid, &voxels, &bricks, camera, settings, &mut ws, &mut sink);
-    if ok.is_ok() {
-        for p in &image {
-            assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
-        }
+    if ok.is_err() {
+        return;
+    }
+    for p in &image {
+        assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
+    }
+    // The same frame composited in bands of 1, 2, 3, ... scanlines must give the
+    // intermediate image the whole composite gives.
+    let tables = PostTables {
+        visible: &mut visible,
+        preint: &mut preint,
+        shade: &mut shade,
+    };
+    let frame = postclass::prepare(grid, &bricks, camera, settings, tables).expect("prepared");
+    let [iw, ih] = frame.view.intermediate;
+    let stride = opaque::words(iw);
+    let mut whole: Vec<Rgba> = vec![[0; 4]; iw * ih];
+    let mut whole_links: Vec<opaque::Word> = vec![0; stride * ih];
+    let mut img = Intermediate::new(iw, ih, &mut whole, &mut whole_links).expect("whole");
+    postclass::composite_band(&frame, &voxels, &mut img).expect("whole composite");
+    let (mut row0, mut rows) = (0, 1);
+    while row0 < ih {
+        let take = rows.min(ih - row0);
+        let mut p: Vec<Rgba> = vec![[0; 4]; iw * take];
+        let mut l: Vec<opaque::Word> = vec![0; stride * take];
+        let mut band = Intermediate::band(iw, ih, row0, take, &mut p, &mut l).expect("band");
+        postclass::composite_band(&frame, &voxels, &mut band).expect("band composite");
+        assert!(
+            p[..] == whole[row0 * iw..(row0 + take) * iw],
+            "band {row0}+{take} differs"
+        );
+        row0 += take;
+        rows += 1;
     }
 }

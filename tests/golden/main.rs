@@ -76,10 +76,11 @@ fn golden_cases_match_reference_and_committed_images() {
 
 #[test]
 fn threaded_rendering_is_bit_identical_to_single_threaded() {
-    for case in CASES
-        .iter()
-        .filter(|c| c.name.starts_with("head64") || c.name == "spheres_45_45")
-    {
+    for case in CASES.iter().filter(|c| {
+        c.name.starts_with("head64")
+            || c.name.starts_with("ml_p")
+            || ["spheres_45_45", "spheres_iso_120"].contains(&c.name)
+    }) {
         let raw = cases::load(case.vol);
         let one = cases::render_ours_threads(case, &raw, 1);
         for threads in [2, 3, 5] {

@@ -683,7 +683,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
             shadows: false,
         };
         let cam = camera(case);
-        let mut r = shearwarp_file::post::PostRenderer::new(&vol);
+        let mut r = shearwarp_file::post::PostRenderer::with_threads(&vol, threads);
         let frame = r
             .render(&vol, mode, case.opacity, &look, &cam)
             .expect("render");

@@ -439,12 +439,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         let look = look_of(o, tf.mode, color, lighting, true)?;
         (enc, look)
     };
-    let threads = o
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    if threads == 0 || threads > 256 {
-        return Err(usage("--threads must be 1..=256"));
-    }
+    let threads = thread_count(o)?;
     Ok(Prepared {
         threads,
         name,
@@ -602,7 +597,19 @@ fn window_volume(raw: RawVolume, lo: f64, hi: f64) -> RawVolume {
     }
 }
 
+/// `--threads`, or all cores.
+fn thread_count(o: &RenderOpts) -> Result<usize, Box<dyn Error>> {
+    let threads = o
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    if threads == 0 || threads > 256 {
+        return Err(usage("--threads must be 1..=256"));
+    }
+    Ok(threads)
+}
+
 struct Dense {
+    threads: usize,
     vol: post::DenseVolume,
     renderer: post::PostRenderer,
     mode: postclass::PostMode,
@@ -619,6 +626,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
         )));
     }
     let camera = camera_of(o)?;
+    let threads = thread_count(o)?;
     let (raw, tf) = load_with_tf(path, o, out)?;
     let sp = out.spinner("quantising and computing normals".into());
     let vol = post::DenseVolume::new(&raw)?;
@@ -639,8 +647,9 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let color = scene::color_table(&tf.color, vol.range)?;
     let lighting = tf.shading.then(|| cli_lighting(o)).transpose()?;
     let look = look_of(o, ModeArg::Composite, color, lighting, false)?;
-    let renderer = post::PostRenderer::new(&vol);
+    let renderer = post::PostRenderer::with_threads(&vol, threads);
     Ok(Dense {
+        threads,
         vol,
         renderer,
         mode,
@@ -907,6 +916,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     serde_json::json!({
                         "volume": volume.display().to_string(),
                         "mode": format!("{:?}", d.mode),
+                        "threads": d.threads,
                         "dims_xyz": d.vol.grid.dims,
                         "image": [d.camera.width, d.camera.height],
                         "frames": frames,
@@ -917,11 +927,12 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 );
             } else {
                 out.text(format_args!(
-                    "volume={} mode={:?} image={}x{} (every frame after a transfer-function change)",
+                    "volume={} mode={:?} image={}x{} threads={} (every frame after a transfer-function change)",
                     volume.display(),
                     d.mode,
                     d.camera.width,
-                    d.camera.height
+                    d.camera.height,
+                    d.threads
                 ));
                 out.text(format_args!(
                     "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",

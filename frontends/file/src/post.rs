@@ -4,13 +4,14 @@
 use crate::scene::{opacity_points, Look};
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{self, Grid, OpacityTf, Scalars, Voxel};
-use shearwarp_core::composite::Rgba;
+use shearwarp_core::composite::{Intermediate, Rgba};
 use shearwarp_core::opaque;
 use shearwarp_core::postclass;
 use shearwarp_core::shade::ShadeTable;
 use shearwarp_core::view::{self, Camera};
-use shearwarp_core::warp::FrameBuffer;
+use shearwarp_core::warp::{self, FrameBuffer};
 use shearwarp_core::Error;
+use std::sync::Mutex;
 
 /// An unclassified volume for post-classified, pre-integrated and isosurface rendering:
 /// quantised scalars and normals, plus min-max bricks. A transfer-function change needs
@@ -56,7 +57,15 @@ impl DenseVolume {
     }
 }
 
-/// Workspace and tables for rendering a [`DenseVolume`].
+/// Workspace and tables for rendering a [`DenseVolume`], on one thread or several.
+///
+/// With several threads the intermediate image is cut into bands of [`BAND_ROWS`]
+/// scanlines, which the threads take in turn as they finish one
+/// ([`postclass::composite_band`]: every scanline depends on itself alone, so the image
+/// is the same for any count); then strips of output rows are warped the same way.
+/// Unlike the classified path's two long bands with work stealing
+/// ([`crate::renderer::Renderer`]), nothing here is skipped by run-length encoding, so
+/// a band's cost follows its area and short bands taken in turn balance well enough.
 pub struct PostRenderer {
     pixels: Vec<Rgba>,
     links: Vec<opaque::Word>,
@@ -64,11 +73,21 @@ pub struct PostRenderer {
     preint: Vec<Rgba>,
     shade: Box<ShadeTable>,
     out_row: Vec<[u8; 4]>,
+    threads: usize,
 }
 
+/// Scanlines of a band that a thread composites at a time.
+pub const BAND_ROWS: usize = 8;
+
 impl PostRenderer {
-    /// Allocates for `vol`.
+    /// Allocates for `vol`, to render on the calling thread.
     pub fn new(vol: &DenseVolume) -> Self {
+        Self::with_threads(vol, 1)
+    }
+
+    /// Allocates for `vol`, to render on `threads` threads (the calling one and
+    /// `threads − 1` scoped ones a frame; at least one).
+    pub fn with_threads(vol: &DenseVolume, threads: usize) -> Self {
         let pix = view::max_intermediate_pixels(vol.grid.dims);
         PostRenderer {
             pixels: vec![[0; 4]; pix],
@@ -77,6 +96,7 @@ impl PostRenderer {
             preint: vec![[0; 4]; 65536],
             shade: Box::new(ShadeTable::UNSHADED),
             out_row: Vec::new(),
+            threads: threads.max(1),
         }
     }
 
@@ -91,9 +111,6 @@ impl PostRenderer {
     ) -> Result<Vec<[u8; 4]>, Error> {
         let pts = opacity_points(opacity);
         let op = OpacityTf::new(&pts)?.build_quantized(vol.range);
-        if self.out_row.len() < camera.width {
-            self.out_row.resize(camera.width, [0; 4]);
-        }
         let mut frame = vec![[0u8; 4]; camera.width * camera.height];
         let settings = postclass::PostSettings {
             mode,
@@ -102,27 +119,108 @@ impl PostRenderer {
             lighting: look.lighting.as_ref(),
             ert_threshold: look.ert_threshold,
         };
-        let mut ws = postclass::PostWorkspace {
-            pixels: &mut self.pixels,
-            links: &mut self.links,
+        if self.threads == 1 {
+            if self.out_row.len() < camera.width {
+                self.out_row.resize(camera.width, [0; 4]);
+            }
+            let mut ws = postclass::PostWorkspace {
+                pixels: &mut self.pixels,
+                links: &mut self.links,
+                visible: &mut self.visible,
+                preint: &mut self.preint,
+                shade: &mut self.shade,
+                out_row: &mut self.out_row,
+            };
+            let mut sink = FrameBuffer {
+                width: camera.width,
+                pixels: &mut frame,
+            };
+            postclass::render(
+                &vol.grid,
+                &vol.voxels,
+                &vol.bricks,
+                camera,
+                &settings,
+                &mut ws,
+                &mut sink,
+            )?;
+            return Ok(frame);
+        }
+        let tables = postclass::PostTables {
             visible: &mut self.visible,
             preint: &mut self.preint,
             shade: &mut self.shade,
-            out_row: &mut self.out_row,
         };
-        let mut sink = FrameBuffer {
-            width: camera.width,
-            pixels: &mut frame,
+        let post = postclass::prepare(&vol.grid, &vol.bricks, camera, &settings, tables)?;
+        let [iw, ih] = post.view.intermediate;
+        let stride = opaque::words(iw);
+        let (n, words) = (iw * ih, stride * ih);
+        // Sized for any view of this volume in `with_threads`; checked before slicing.
+        for (what, needed, got) in [
+            ("intermediate pixels", n, self.pixels.len()),
+            ("intermediate links", words, self.links.len()),
+        ] {
+            if got < needed {
+                return Err(Error::BufferTooSmall { what, needed, got });
+            }
+        }
+        let bands = self.pixels[..n]
+            .chunks_mut(BAND_ROWS * iw.max(1))
+            .zip(self.links[..words].chunks_mut(BAND_ROWS * stride.max(1)))
+            .enumerate()
+            .map(|(b, (p, l))| (b * BAND_ROWS, p, l));
+        let bands = Mutex::new(bands);
+        let composite = || -> Result<(), Error> {
+            loop {
+                let next = bands.lock().map_err(|_| POISONED)?.next();
+                let Some((row0, p, l)) = next else {
+                    return Ok(());
+                };
+                let rows = BAND_ROWS.min(ih - row0);
+                let mut img = Intermediate::band(iw, ih, row0, rows, p, l)?;
+                postclass::composite_band(&post, &vol.voxels, &mut img)?;
+            }
         };
-        postclass::render(
-            &vol.grid,
-            &vol.voxels,
-            &vol.bricks,
-            camera,
-            &settings,
-            &mut ws,
-            &mut sink,
-        )?;
+        on_scoped_threads(self.threads, composite)?;
+        // Strips of output rows, each warped in place (its own row buffer).
+        let w = camera.width;
+        if w == 0 {
+            return Ok(frame);
+        }
+        let pixels = &self.pixels[..n];
+        let strips = Mutex::new(frame.chunks_mut(warp::TILE_ROWS * w).enumerate());
+        let warp = || -> Result<(), Error> {
+            loop {
+                let next = strips.lock().map_err(|_| POISONED)?.next();
+                let Some((i, strip)) = next else {
+                    return Ok(());
+                };
+                let rows = i * warp::TILE_ROWS..i * warp::TILE_ROWS + strip.len() / w;
+                warp::warp_rows(pixels, None, &post.view, rows, strip, &mut warp::InPlace)?;
+            }
+        };
+        on_scoped_threads(self.threads, warp)?;
         Ok(frame)
     }
+}
+
+/// The error of a band or strip queue whose lock a panicking thread poisoned.
+const POISONED: Error = Error::Source {
+    reason: "a post-classification thread panicked",
+};
+
+/// Runs `work` on the calling thread and on `threads − 1` scoped threads; returns the
+/// first error.
+fn on_scoped_threads(
+    threads: usize,
+    work: impl Fn() -> Result<(), Error> + Sync,
+) -> Result<(), Error> {
+    std::thread::scope(|s| {
+        let others: Vec<_> = (1..threads).map(|_| s.spawn(&work)).collect();
+        let mine = work();
+        others
+            .into_iter()
+            .map(|h| h.join().unwrap_or(Err(POISONED)))
+            .fold(mine, |acc, r| acc.and(r))
+    })
 }
