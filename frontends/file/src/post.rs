@@ -64,8 +64,10 @@ impl DenseVolume {
 /// ([`postclass::composite_band`]: every scanline depends on itself alone, so the image
 /// is the same for any count); then strips of output rows are warped the same way.
 /// Unlike the classified path's two long bands with work stealing
-/// ([`crate::renderer::Renderer`]), nothing here is skipped by run-length encoding, so
-/// a band's cost follows its area and short bands taken in turn balance well enough.
+/// ([`crate::renderer::Renderer`]), the bands are short and taken from a queue: a band's
+/// cost is its area less its empty bricks and opaque pixels, uneven across the image but
+/// fine-grained enough that thirty-odd bands a frame balance two threads (1.90–2.03×
+/// faster than one on the head and the hires brain, BENCHMARKS.md).
 pub struct PostRenderer {
     pixels: Vec<Rgba>,
     links: Vec<opaque::Word>,

@@ -91,6 +91,32 @@ fn every_isa_level_renders_the_same_png() {
 }
 
 #[test]
+fn unclassified_modes_render_the_same_png_on_any_thread_count() {
+    let t = Tmp::new("post-threads");
+    for mode in ["post", "preint", "iso"] {
+        let run = |threads: &str| {
+            let head = head64();
+            let mut a = vec![
+                head.as_str(),
+                "--shading",
+                "--mode",
+                mode,
+                "--threads",
+                threads,
+            ];
+            if mode == "iso" {
+                a.extend_from_slice(&["--iso", "80"]);
+            }
+            render(&a, &t.p(&format!("{mode}-{threads}.png")))
+        };
+        let one = run("1");
+        for threads in ["2", "3"] {
+            assert!(run(threads) == one, "--mode {mode} --threads {threads}");
+        }
+    }
+}
+
+#[test]
 fn a_saved_tf_file_renders_like_the_same_options() {
     let t = Tmp::new("tf");
     let spec = TfSpec {
