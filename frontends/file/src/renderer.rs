@@ -617,7 +617,7 @@ impl Renderer {
         // scanlines run across it (half of a turn about the vertical axis), every strip
         // reads every band whichever end it is taken from (brainsmall at 256²: the
         // two-thread warp gains 1.35× there, 1.52× in the other views; a split by
-        // columns, measured instead, was slower, see BENCHMARKS.md). Two threads, frames
+        // columns, measured instead, was slower, see docs/bench-history.md). Two threads, frames
         // alternating in pairs in one process (medians of 180 warps), against claiming
         // from the top only: 0.85–0.91× the time in six of eight comparisons on
         // brainsmall and the head at 256² and 512², 0.99 and 1.01 in the other two; with
