@@ -19,9 +19,11 @@
 //!   classified (opacity and colour interpolated linearly between table entries).
 //! - **Pre-integration.** The slab between adjacent slices takes its front and back
 //!   scalars from bilinear interpolation in each slice at the ray's position; a
-//!   256×256 table, rebuilt when the transfer function or the slab length changes, holds
-//!   the colour and opacity of a linear ramp between them, integrated front to back in 16
-//!   steps with opacity corrected for the slab length.
+//!   256×256 table holds the colour and opacity of a linear ramp between them,
+//!   integrated front to back in 16 steps with opacity corrected for the slab length.
+//!   It is built every frame: it depends on the transfer function and on the slab
+//!   length, which changes with the view, so one or the other changes from frame to
+//!   frame in a turn or while a transfer function is edited.
 //! - **Isosurface.** The first slab whose front and back scalars bracket the isovalue
 //!   sets the pixel to the isovalue's colour, shaded with the interpolated lighting, and
 //!   makes it opaque.
