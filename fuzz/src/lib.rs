@@ -1,62 +1,9 @@
 //! Helpers shared by the fuzz targets.
 
-use shearwarp_core::io::Crc32;
-use shearwarp_core::swv::{ENTRY_LEN, HEADER_LEN, TABLES_START};
+// The checksum repair the core's integration tests use, from the same file.
+// (`entry_at` there is for the tests only.)
+#[allow(dead_code)]
+#[path = "../../core/tests/common/swv_crc.rs"]
+mod swv_crc;
 
-fn u32_at(b: &[u8], o: usize) -> Option<u32> {
-    Some(u32::from_le_bytes(b.get(o..o + 4)?.try_into().ok()?))
-}
-
-fn put_u32(b: &mut [u8], o: usize, v: u32) {
-    if let Some(d) = b.get_mut(o..o + 4) {
-        d.copy_from_slice(&v.to_le_bytes());
-    }
-}
-
-/// Recomputes every checksum the bytes allow: slice records whose table entry points
-/// inside the input, then the table checksum, then the header checksum.
-pub fn fix_checksums(b: &mut [u8]) {
-    if b.len() < HEADER_LEN {
-        return;
-    }
-    let dims: [usize; 3] = [12, 16, 20].map(|o| u32_at(b, o).unwrap_or(0) as usize);
-    if dims.iter().all(|&d| (1..=4096).contains(&d)) {
-        let tables_end = TABLES_START + ENTRY_LEN * (dims[0] + dims[1] + dims[2]);
-        if tables_end <= b.len() {
-            // Entries for principal x, then y, then z; nj = nz, nx, ny respectively.
-            let nj_of = |e: usize| {
-                if e < dims[0] {
-                    dims[2]
-                } else if e < dims[0] + dims[1] {
-                    dims[0]
-                } else {
-                    dims[1]
-                }
-            };
-            for e in 0..dims[0] + dims[1] + dims[2] {
-                let o = TABLES_START + ENTRY_LEN * e;
-                let (Some(lo), Some(hi), Some(runs), Some(vox)) = (
-                    u32_at(b, o),
-                    u32_at(b, o + 4),
-                    u32_at(b, o + 8),
-                    u32_at(b, o + 12),
-                ) else {
-                    continue;
-                };
-                let off = lo as u64 | (hi as u64) << 32;
-                let len = 8 * (nj_of(e) as u64 + 1) + runs as u64 + 4 * vox as u64;
-                if off
-                    .checked_add(len)
-                    .is_some_and(|end| end <= b.len() as u64)
-                {
-                    let c = Crc32::of(&b[off as usize..(off + len) as usize]);
-                    put_u32(b, o + 16, c);
-                }
-            }
-            let t = Crc32::of(&b[HEADER_LEN..tables_end]);
-            put_u32(b, 56, t);
-        }
-    }
-    let h = Crc32::of(&b[..60]);
-    put_u32(b, 60, h);
-}
+pub use swv_crc::fix_checksums;
