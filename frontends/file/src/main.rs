@@ -609,7 +609,6 @@ fn thread_count(o: &RenderOpts) -> Result<usize, Box<dyn Error>> {
 }
 
 struct Dense {
-    threads: usize,
     vol: post::DenseVolume,
     renderer: post::PostRenderer,
     mode: postclass::PostMode,
@@ -649,7 +648,6 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let look = look_of(o, ModeArg::Composite, color, lighting, false)?;
     let renderer = post::PostRenderer::with_threads(&vol, threads);
     Ok(Dense {
-        threads,
         vol,
         renderer,
         mode,
@@ -916,7 +914,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     serde_json::json!({
                         "volume": volume.display().to_string(),
                         "mode": format!("{:?}", d.mode),
-                        "threads": d.threads,
+                        "threads": d.renderer.threads(),
                         "dims_xyz": d.vol.grid.dims,
                         "image": [d.camera.width, d.camera.height],
                         "frames": frames,
@@ -932,7 +930,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     d.mode,
                     d.camera.width,
                     d.camera.height,
-                    d.threads
+                    d.renderer.threads()
                 ));
                 out.text(format_args!(
                     "frames={} median_ms={:.2} min_ms={:.2} preprocess_ms={:.1}",

@@ -102,6 +102,11 @@ impl PostRenderer {
         }
     }
 
+    /// Threads a frame renders on.
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+
     /// Renders one frame; `opacity` is the opacity transfer function over raw values.
     pub fn render(
         &mut self,
