@@ -346,6 +346,28 @@ impl<'b> Row<'b> {
         self.dirty = (0, 0);
     }
 
+    /// Shades voxels `x..y` of row `j` from `src` (voxel `x` first), unscaled and
+    /// unshadowed, into a row that holds the row's other shaded voxels or nothing (the
+    /// perspective compositor shades a row piece by piece, as its pixels ask).
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
+    pub(crate) fn shade(
+        &mut self,
+        src: &[Voxel],
+        (x, y): (usize, usize),
+        t: &SliceTables<'_>,
+        j: i64,
+        k: &impl Kernels,
+    ) {
+        let Some(dst) = self.buf.get_mut(x + 1..y + 1) else {
+            return;
+        };
+        shade_run(dst, src, x, t, ONE, j, None, k);
+        self.dirty = match self.extent() {
+            Some((lo, hi)) => (lo.min(x + 1), hi.max(y + 1)),
+            None => (x + 1, y + 1),
+        };
+    }
+
     /// `scale` (Q15) multiplies every colour: the slice's depth-cue factor. `shadow`
     /// gives the first light's transmittance for voxels of row `j`. With `needed`, only
     /// voxels some non-opaque pixel will read are shaded (the others stay zero, and only

@@ -21,6 +21,7 @@
 //! [`GAIN_LEVELS`] step lengths; on uniform material this equals correcting every voxel
 //! for the pixel's own step.
 
+use crate::classify::Voxel;
 use crate::composite::{Intermediate, Mode, Rgba, Row, SliceTables, Spans};
 use crate::error::{need, Error};
 use crate::fixed::ONE;
@@ -289,18 +290,9 @@ pub(crate) fn composite_slice(
                     old.fill([0; 4]);
                 }
                 let (runs, voxels) = slice.scanline(j as usize);
-                row.fill(
-                    runs,
-                    voxels,
-                    tables,
-                    ONE,
-                    j,
-                    None,
-                    None,
-                    &crate::composite::Portable,
-                );
                 // The band's scanlines that read row j: a pixel opaque in all of them is
-                // never composited again, so its filtered value is not needed.
+                // never composited again, so neither its filtered value nor the voxels
+                // only it reads are needed.
                 let readers = if tables.mode == Mode::Composite {
                     // Widened by a row each way: rounding at the footprint's edges must
                     // only ever add readers.
@@ -316,7 +308,21 @@ pub(crate) fn composite_slice(
                 } else {
                     None
                 };
-                slots[s] = filter_row(out, &row, runs, &xs, ni, &mut wx, readers.as_ref());
+                row.clear();
+                let mut shader = Shader::new(runs, voxels, ni);
+                let mut put = |r: &mut Row<'_>, range| {
+                    shader.upto(r, range, tables, j, &crate::composite::Portable)
+                };
+                slots[s] = filter_row(
+                    out,
+                    &mut row,
+                    &mut put,
+                    runs,
+                    &xs,
+                    ni,
+                    &mut wx,
+                    readers.as_ref(),
+                );
                 slots[s].j = j;
             }
             lo = lo.min(slots[s].lo);
@@ -392,20 +398,167 @@ struct Readers<'a, 'b> {
 }
 
 impl Readers<'_, '_> {
-    /// True if pixel `u` is opaque in every reading scanline.
+    /// Bit `t` set if pixel `u + t` is open in some reading scanline, for `t` in `0..64`
+    /// (all set when no scanline of the band reads the row, as nothing is known closed).
     #[inline]
-    fn all_opaque(&self, u: usize) -> bool {
-        self.count > 0
-            && (0..self.count).all(|r| opaque::is_opaque(self.img.opaque_line(self.first + r), u))
+    fn open_bits(&self, u: usize) -> u64 {
+        if self.count == 0 {
+            return u64::MAX;
+        }
+        (0..self.count).fold(0, |open, r| {
+            let line = self.img.opaque_line(self.first + r);
+            open | opaque::open_bits(line, self.img.width(), u as i64)
+        })
+    }
+}
+
+/// The runs of pixels in `u..end` that some reading scanline has open: the whole range
+/// without readers (MIP, where no pixel closes).
+struct OpenRuns<'r, 'a, 'b> {
+    readers: Option<&'r Readers<'a, 'b>>,
+    /// Open pixels `at + t` for the bits `t` set, not yet returned.
+    bits: u64,
+    at: usize,
+    /// The first pixel whose bits are not loaded yet.
+    next: usize,
+    end: usize,
+}
+
+impl<'r, 'a, 'b> OpenRuns<'r, 'a, 'b> {
+    fn new(readers: Option<&'r Readers<'a, 'b>>, u: usize, end: usize) -> Self {
+        OpenRuns {
+            readers,
+            bits: 0,
+            at: u,
+            next: u,
+            end,
+        }
+    }
+
+    /// Loads the bits of the next 64 pixels (fewer at the end): `None` past the end.
+    #[inline]
+    fn load(&mut self) -> Option<u64> {
+        if self.next >= self.end {
+            return None;
+        }
+        self.at = self.next;
+        self.next = self.at.saturating_add(64);
+        let open = self.readers.map_or(u64::MAX, |r| r.open_bits(self.at));
+        Some(open & opaque::ones(self.end - self.at))
+    }
+}
+
+impl Iterator for OpenRuns<'_, '_, '_> {
+    type Item = (usize, usize);
+
+    fn next(&mut self) -> Option<(usize, usize)> {
+        while self.bits == 0 {
+            self.bits = self.load()?;
+        }
+        let z = self.bits.trailing_zeros() as usize;
+        let start = self.at + z;
+        // The ones from bit z: at most 64 − z, as the shift brings in zeros.
+        let len = (!(self.bits >> z)).trailing_zeros() as usize;
+        if z + len < 64 {
+            self.bits &= !opaque::ones(z + len);
+            return Some((start, self.at + z + len));
+        }
+        // The run reaches the window's last pixel and may go on into the next windows.
+        self.bits = 0;
+        let mut stop = self.next.min(self.end);
+        while let Some(w) = self.load() {
+            let more = (!w).trailing_zeros() as usize;
+            stop = self.at + more.min(self.end - self.at);
+            if more < 64 {
+                self.bits = w & !opaque::ones(more);
+                break;
+            }
+        }
+        Some((start, stop))
+    }
+}
+
+/// Shades a voxel row on demand, front to back: each call shades the visible voxels of
+/// a range not shaded before, so a voxel no open pixel reads is never shaded.
+struct Shader<'r> {
+    spans: Spans<'r>,
+    voxels: &'r [Voxel],
+    /// The visible span at the cursor: voxels `a..b`, voxel `a` at `voxels[base]`.
+    span: Option<(usize, usize, usize)>,
+    /// Stored voxels before the next span.
+    stored: usize,
+    /// Voxels before this one are shaded or never needed.
+    done: usize,
+    ni: usize,
+}
+
+impl<'r> Shader<'r> {
+    fn new(runs: &'r [u8], voxels: &'r [Voxel], ni: usize) -> Self {
+        let mut s = Shader {
+            spans: Spans::new(runs),
+            voxels,
+            span: None,
+            stored: 0,
+            done: 0,
+            ni,
+        };
+        s.advance();
+        s
+    }
+
+    fn advance(&mut self) {
+        self.span = self.spans.next().map(|(a, b)| {
+            let base = self.stored;
+            self.stored += b - a;
+            (a, b, base)
+        });
+    }
+
+    /// Shades the visible voxels of `from..to` (clamped to the row) that are not shaded
+    /// yet. `from` must not decrease from call to call: voxels skipped over are taken as
+    /// never needed.
+    #[inline]
+    fn upto(
+        &mut self,
+        row: &mut Row<'_>,
+        (from, to): (i64, i64),
+        t: &SliceTables<'_>,
+        j: i64,
+        k: &impl crate::composite::Kernels,
+    ) {
+        let clamp = |x: i64| x.clamp(0, self.ni as i64) as usize;
+        let to = clamp(to);
+        self.done = self.done.max(clamp(from));
+        while self.done < to {
+            let Some((a, b, base)) = self.span else {
+                break;
+            };
+            if b <= self.done {
+                self.advance();
+                continue;
+            }
+            if a >= to {
+                break;
+            }
+            // a < to and done < b, so x < y.
+            let (x, y) = (a.max(self.done), b.min(to));
+            let src = self.voxels.get(base + (x - a)..).unwrap_or_default();
+            row.shade(src, (x, y), t, j, k);
+            self.done = y;
+        }
+        self.done = self.done.max(to);
     }
 }
 
 /// Filters the shaded voxel row `row` horizontally into `out` (zero on entry) over the
 /// pixels its non-transparent runs reach, except pixels every reader has made opaque;
-/// returns the written range.
+/// `shade` is asked for the voxels of each run of the other pixels before they are
+/// filtered. Returns the written range.
+#[allow(clippy::too_many_arguments)]
 fn filter_row(
     out: &mut [Rgba],
-    row: &Row<'_>,
+    row: &mut Row<'_>,
+    shade: &mut impl FnMut(&mut Row<'_>, (i64, i64)),
     runs: &[u8],
     xs: &AxisMap,
     ni: usize,
@@ -426,30 +579,34 @@ fn filter_row(
         if ua >= ub {
             continue;
         }
-        for u in ua..ub {
-            if readers.is_some_and(|r| r.all_opaque(u as usize)) {
-                continue;
-            }
-            let (first, n) = xs.taps(u, wx);
-            let mut acc = [0u32; 4];
-            for (t, &w) in wx.iter().take(n).enumerate() {
-                let i = first + t as i64;
-                if w == 0 || i < 0 || i >= ni as i64 {
-                    continue;
-                }
-                // Entry i + 1 < ni + 2, the row buffer's length.
-                let px = row.buf.get(i as usize + 1).copied().unwrap_or_default();
-                for c in 0..4 {
-                    acc[c] += w * px[c] as u32;
-                }
-            }
-            if let Some(o) = out.get_mut(u as usize) {
-                *o = acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16);
-            }
-        }
-        slot.lo = slot.lo.min(ua as usize);
-        slot.hi = ub as usize;
         done = ub;
+        for (p0, p1) in OpenRuns::new(readers, ua as usize, ub as usize) {
+            // The taps move right with the pixel: the run reads voxels from its first
+            // pixel's first tap to its last pixel's last.
+            let (first, _) = xs.taps(p0 as i64, wx);
+            let (last, n) = xs.taps(p1 as i64 - 1, wx);
+            shade(row, (first, last + n as i64));
+            for u in p0..p1 {
+                let (first, n) = xs.taps(u as i64, wx);
+                let mut acc = [0u32; 4];
+                for (t, &w) in wx.iter().take(n).enumerate() {
+                    let i = first + t as i64;
+                    if w == 0 || i < 0 || i >= ni as i64 {
+                        continue;
+                    }
+                    // Entry i + 1 < ni + 2, the row buffer's length.
+                    let px = row.buf.get(i as usize + 1).copied().unwrap_or_default();
+                    for c in 0..4 {
+                        acc[c] += w * px[c] as u32;
+                    }
+                }
+                if let Some(o) = out.get_mut(u) {
+                    *o = acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16);
+                }
+            }
+            slot.lo = slot.lo.min(p0);
+            slot.hi = p1;
+        }
     }
     if slot.lo > slot.hi {
         slot.lo = 0;
