@@ -187,6 +187,44 @@ impl AxisMap {
         (first, n)
     }
 
+    /// The left end of pixel `u`'s footprint, Q16: it moves right by `w` a pixel.
+    #[inline(always)]
+    fn left(&self, u: i64) -> i64 {
+        u * self.w - self.a - self.w / 2
+    }
+
+    /// The footprint `[lo, lo + w)` filtered over the voxels of `row` (voxel `i` at
+    /// `row[i + 1]`, entries outside the row reading as zero): the taps of
+    /// [`AxisMap::taps`] applied as they are found, rounded to Q15.
+    #[inline(always)]
+    fn filter(&self, lo: i64, row: &[Rgba]) -> Rgba {
+        let hi = lo + self.w;
+        // The voxel whose cell holds `lo`, and its cell's right edge.
+        let first = (lo + P1 / 2) >> P;
+        let mut edge = first * P1 + P1 / 2;
+        let mut prev = 0u32;
+        let mut acc = [0u32; 4];
+        for i in (first..).take(MAX_TAPS) {
+            let cum = if edge >= hi {
+                ONE
+            } else {
+                (((edge - lo) * self.recip) >> 16).clamp(0, ONE as i64) as u32
+            };
+            let w = cum - prev.min(cum);
+            prev = cum;
+            // Index i + 1 wraps for i < −1 and is then out of the row, as past its end.
+            let px = row.get((i + 1) as usize).copied().unwrap_or_default();
+            for c in 0..4 {
+                acc[c] += w * px[c] as u32;
+            }
+            if edge >= hi {
+                break;
+            }
+            edge += P1;
+        }
+        acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16)
+    }
+
     /// Pixels whose footprint overlaps voxels `a..b`: `[lo, hi)` before clamping.
     fn pixels_of(&self, a: usize, b: usize) -> (i64, i64) {
         // `w >= 1` from `new`; the `max` shows the compiler the divisor is not zero.
@@ -319,7 +357,6 @@ pub(crate) fn composite_slice(
                     &mut put,
                     runs,
                     &xs,
-                    ni,
                     &mut wx,
                     readers.as_ref(),
                 );
@@ -338,46 +375,62 @@ pub(crate) fn composite_slice(
         }
         let (pixels, opaque_line) = img.scanline_mut(v - img.first_row());
         let rv = gain.map_or(0, |g| g.row_term(v));
-        let mut u = lo;
+        // The ring rows under the scanline, each from pixel `lo`, with their weights.
+        let mut taps: [(&[Rgba], u32); MAX_TAPS] = [(&[], 0); MAX_TAPS];
+        for (t, &(base, w)) in taps.iter_mut().zip(under) {
+            *t = (ring_buf.get(base + lo..base + hi).unwrap_or_default(), w);
+        }
+        let taps = taps.get(..under.len()).unwrap_or_default();
+        // Runs of open pixels: a pixel becomes opaque only as it is composited, so the
+        // runs found before a run is composited stay open until then.
+        let mut u = opaque::next_open(opaque_line, width, lo, hi);
         while u < hi {
-            if opaque::is_opaque(opaque_line, u) {
-                u = opaque::next_open(opaque_line, width, u, hi);
-                continue;
-            }
-            let mut s = [0u32; 4];
-            for &(base, w) in under {
-                // Inside the ring: `u < hi <= width` and `base` starts one of its rows.
-                let h = ring_buf.get(base + u).copied().unwrap_or_default();
-                for c in 0..4 {
-                    s[c] += w * h[c] as u32;
+            let e = opaque::open_run_end(opaque_line, width, u, hi);
+            for x in u..e {
+                // Colours are premultiplied, so a pixel whose taps have no opacity has
+                // no colour either: its opacity is summed first.
+                let alpha: u32 = taps
+                    .iter()
+                    .map(|&(r, w)| w * r.get(x - lo).map_or(0, |h| h[3] as u32))
+                    .sum();
+                if alpha == 0 {
+                    continue;
                 }
-            }
-            let mut s = s.map(|x| ((x + (1 << 14)) >> 15).min(ONE));
-            let Some(p) = pixels.get_mut(u) else {
-                break;
-            };
-            match tables.mode {
-                Mode::Composite => {
-                    if s[3] != 0 {
-                        if let Some(g) = gain {
-                            g.apply(&mut s, u, rv);
+                let mut s = [0u32; 4];
+                for &(r, w) in taps {
+                    let h = r.get(x - lo).copied().unwrap_or_default();
+                    for c in 0..4 {
+                        s[c] += w * h[c] as u32;
+                    }
+                }
+                let mut s = s.map(|x| ((x + (1 << 14)) >> 15).min(ONE));
+                let Some(p) = pixels.get_mut(x) else {
+                    break;
+                };
+                match tables.mode {
+                    Mode::Composite => {
+                        if s[3] != 0 {
+                            if let Some(g) = gain {
+                                g.apply(&mut s, x, rv);
+                            }
+                            let tr = ONE - p[3] as u32;
+                            for c in 0..4 {
+                                p[c] =
+                                    (p[c] as u32 + ((s[c] * tr + (1 << 14)) >> 15)).min(ONE) as u16;
+                            }
+                            if p[3] as u32 >= tables.ert {
+                                opaque::mark(opaque_line, x);
+                            }
                         }
-                        let tr = ONE - p[3] as u32;
-                        for c in 0..4 {
-                            p[c] = (p[c] as u32 + ((s[c] * tr + (1 << 14)) >> 15)).min(ONE) as u16;
-                        }
-                        if p[3] as u32 >= tables.ert {
-                            opaque::mark(opaque_line, u);
+                    }
+                    Mode::Mip => {
+                        if s[0] > p[0] as u32 {
+                            *p = [s[0] as u16; 4];
                         }
                     }
                 }
-                Mode::Mip => {
-                    if s[0] > p[0] as u32 {
-                        *p = [s[0] as u16; 4];
-                    }
-                }
             }
-            u += 1;
+            u = opaque::next_open(opaque_line, width, e, hi);
         }
     }
     row.clear();
@@ -561,7 +614,6 @@ fn filter_row(
     shade: &mut impl FnMut(&mut Row<'_>, (i64, i64)),
     runs: &[u8],
     xs: &AxisMap,
-    ni: usize,
     wx: &mut [u32; MAX_TAPS],
     readers: Option<&Readers<'_, '_>>,
 ) -> Slot {
@@ -586,23 +638,10 @@ fn filter_row(
             let (first, _) = xs.taps(p0 as i64, wx);
             let (last, n) = xs.taps(p1 as i64 - 1, wx);
             shade(row, (first, last + n as i64));
-            for u in p0..p1 {
-                let (first, n) = xs.taps(u as i64, wx);
-                let mut acc = [0u32; 4];
-                for (t, &w) in wx.iter().take(n).enumerate() {
-                    let i = first + t as i64;
-                    if w == 0 || i < 0 || i >= ni as i64 {
-                        continue;
-                    }
-                    // Entry i + 1 < ni + 2, the row buffer's length.
-                    let px = row.buf.get(i as usize + 1).copied().unwrap_or_default();
-                    for c in 0..4 {
-                        acc[c] += w * px[c] as u32;
-                    }
-                }
-                if let Some(o) = out.get_mut(u) {
-                    *o = acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16);
-                }
+            let mut lo = xs.left(p0 as i64);
+            for o in out.get_mut(p0..p1).unwrap_or_default() {
+                *o = xs.filter(lo, row.buf);
+                lo += xs.w;
             }
             slot.lo = slot.lo.min(p0);
             slot.hi = p1;
