@@ -336,8 +336,10 @@ pub(crate) fn composite_slice(
                     // only ever add readers.
                     let (va, vb) = ys.pixels_of(j as usize, j as usize + 1);
                     let band = img.first_row() as i64..(img.first_row() + rows_held) as i64;
-                    let va = (va - 1).clamp(band.start, band.end);
-                    let vb = (vb + 1).clamp(band.start, band.end);
+                    // `max` then `min`, not `clamp`, which the compiler cannot show
+                    // never panics here (the firmware's build must link).
+                    let va = (va - 1).max(band.start).min(band.end);
+                    let vb = (vb + 1).max(band.start).min(band.end);
                     Some(Readers {
                         img: &*img,
                         first: (va - band.start) as usize,
