@@ -699,6 +699,22 @@ pub(crate) trait Kernels {
     /// Bit `i` set where pixel `px[i]` (at most 64 pixels) reached opacity `thr`
     /// (`thr >= 1`): [`closed_bits`] or a bit-identical vector version.
     fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64;
+    /// Composites a slice of a perspective view ([`crate::perspective::composite_slice`])
+    /// with these kernels, in a function of its own compiled for the build's
+    /// instruction set: inlined into the band compositor instead, it made frames slower.
+    fn perspective(&self, job: PerspectiveSlice<'_, '_>) -> Result<(), Error>;
+}
+
+/// One slice of a perspective view to composite ([`Kernels::perspective`]): slice `k`
+/// into the scanlines `img` holds, with `rows` as the row buffer, all zero if `clean`.
+pub(crate) struct PerspectiveSlice<'a, 'b> {
+    pub img: &'a mut Intermediate<'b>,
+    pub slice: &'a RleSlice<'a>,
+    pub k: usize,
+    pub view: &'a Factorization,
+    pub tables: &'a SliceTables<'a>,
+    pub rows: &'a mut [Rgba],
+    pub clean: bool,
 }
 
 /// The portable kernels: [`touch`], [`premultiply`], [`closed_bits`] and [`over_run`],
@@ -724,6 +740,10 @@ impl Kernels for Portable {
     fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
         closed_bits(px, thr)
     }
+    #[inline(always)]
+    fn perspective(&self, job: PerspectiveSlice<'_, '_>) -> Result<(), Error> {
+        crate::perspective::composite_slice(job, self)
+    }
 }
 
 /// Kernels given as closures: an instruction-set build writes them inside its
@@ -731,15 +751,16 @@ impl Kernels for Portable {
 /// vector intrinsics those features make safe). Only the x86-64 builds have such
 /// functions.
 #[cfg(target_arch = "x86_64")]
-pub(crate) struct With<W, P, O, C>(pub W, pub P, pub O, pub C);
+pub(crate) struct With<W, P, O, C, S>(pub W, pub P, pub O, pub C, pub S);
 
 #[cfg(target_arch = "x86_64")]
-impl<W, P, O, C> Kernels for With<W, P, O, C>
+impl<W, P, O, C, S> Kernels for With<W, P, O, C, S>
 where
     W: Fn(&[Voxel]),
     P: Fn(&[u16; 4], &ShadeEntry, u32) -> Rgba,
     O: Fn(&mut [Rgba], &[Rgba], &[Rgba], [u32; 4]) -> u16,
     C: Fn(&[Rgba], u32) -> u64,
+    S: Fn(PerspectiveSlice<'_, '_>) -> Result<(), Error>,
 {
     #[inline(always)]
     fn warm(&self, voxels: &[Voxel]) {
@@ -756,6 +777,10 @@ where
     #[inline(always)]
     fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
         (self.3)(px, thr)
+    }
+    #[inline(always)]
+    fn perspective(&self, job: PerspectiveSlice<'_, '_>) -> Result<(), Error> {
+        (self.4)(job)
     }
 }
 
@@ -1021,7 +1046,15 @@ pub(crate) fn composite_slice_in(
                 reason: "shadows are not available in perspective views",
             });
         }
-        return crate::perspective::composite_slice(img, slice, k, view, tables, rows, clean);
+        return kern.perspective(PerspectiveSlice {
+            img,
+            slice,
+            k,
+            view,
+            tables,
+            rows,
+            clean,
+        });
     }
     need("row buffer", row_buffer_len(ni), rows.len())?;
     if view.supersample > 1 {
@@ -1903,6 +1936,9 @@ mod tests {
         }
         fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
             closed_bits(px, thr)
+        }
+        fn perspective(&self, job: PerspectiveSlice<'_, '_>) -> Result<(), Error> {
+            crate::perspective::composite_slice(job, self)
         }
     }
 

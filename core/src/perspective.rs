@@ -22,11 +22,12 @@
 //! for the pixel's own step.
 
 use crate::classify::Voxel;
-use crate::composite::{Intermediate, Mode, Rgba, Row, SliceTables, Spans};
+use crate::composite::{
+    Intermediate, Kernels, Mode, PerspectiveSlice, Rgba, Row, SliceTables, Spans,
+};
 use crate::error::{need, Error};
 use crate::fixed::ONE;
 use crate::opaque;
-use crate::rle::RleSlice;
 use crate::view::{Factorization, Perspective, MAX_DECIMATION};
 
 /// Step lengths at which the per-ray gain table is tabulated.
@@ -245,16 +246,30 @@ struct Slot {
 
 /// Composites slice `k` of a perspective view into the scanlines `img` holds. `rows`
 /// must hold [`row_buffer_len`]`(view)` entries, all zero if `clean` (they are all zero
-/// again on success).
+/// again on success). `kern` shades the voxels. The portable kernels call this, the
+/// instruction-set builds [`composite_slice_in`] inlined into a function of their own.
 pub(crate) fn composite_slice(
-    img: &mut Intermediate<'_>,
-    slice: &RleSlice<'_>,
-    k: usize,
-    view: &Factorization,
-    tables: &SliceTables<'_>,
-    rows: &mut [Rgba],
-    clean: bool,
+    job: PerspectiveSlice<'_, '_>,
+    kern: &impl Kernels,
 ) -> Result<(), Error> {
+    composite_slice_in(job, kern)
+}
+
+/// The body of [`composite_slice`].
+#[inline(always)]
+pub(crate) fn composite_slice_in(
+    job: PerspectiveSlice<'_, '_>,
+    kern: &impl Kernels,
+) -> Result<(), Error> {
+    let PerspectiveSlice {
+        img,
+        slice,
+        k,
+        view,
+        tables,
+        rows,
+        clean,
+    } = job;
     let gain = tables.ray_gain;
     let [ni, nj, _] = view.dims;
     let Some(ss) = view.slice_scale(k) else {
@@ -350,9 +365,7 @@ pub(crate) fn composite_slice(
                 };
                 row.clear();
                 let mut shader = Shader::new(runs, voxels, ni);
-                let mut put = |r: &mut Row<'_>, range| {
-                    shader.upto(r, range, tables, j, &crate::composite::Portable)
-                };
+                let mut put = |r: &mut Row<'_>, range| shader.upto(r, range, tables, j, kern);
                 slots[s] = filter_row(
                     out,
                     &mut row,
@@ -579,7 +592,7 @@ impl<'r> Shader<'r> {
         (from, to): (i64, i64),
         t: &SliceTables<'_>,
         j: i64,
-        k: &impl crate::composite::Kernels,
+        k: &impl Kernels,
     ) {
         let clamp = |x: i64| x.clamp(0, self.ni as i64) as usize;
         let to = clamp(to);

@@ -331,6 +331,53 @@ macro_rules! band_compositor {
     };
 }
 
+/// Defines an instruction-set build `$name` of the band compositor, compiled with the
+/// target features `$features`, whose kernels are `[$warm, $premultiply, $over,
+/// $closed]` ([`composite::With`]), and beside it `$persp`: the perspective slice
+/// compositor compiled with the same features and kernels, in a function of its own
+/// ([`composite::Kernels::perspective`]).
+#[cfg(target_arch = "x86_64")]
+macro_rules! isa_band_compositor {
+    (
+        $(#[$attr:meta])*
+        $name:ident, $persp:ident, $features:literal,
+        [$warm:expr, $premultiply:expr, $over:expr, $closed:expr $(,)?]
+    ) => {
+        band_compositor! {
+            $(#[$attr])*
+            #[target_feature(enable = $features)]
+            $name,
+            &isa_kernels!($persp, $warm, $premultiply, $over, $closed)
+        }
+
+        #[doc = concat!(
+            "[`crate::perspective::composite_slice`] as [`", stringify!($name), "`] builds it."
+        )]
+        #[target_feature(enable = $features)]
+        #[inline(never)]
+        fn $persp(job: composite::PerspectiveSlice<'_, '_>) -> Result<(), Error> {
+            let kern = isa_kernels!($persp, $warm, $premultiply, $over, $closed);
+            crate::perspective::composite_slice_in(job, &kern)
+        }
+    };
+}
+
+/// The kernels of an instruction-set build ([`isa_band_compositor`]): written where the
+/// build's target features are enabled, so the closures are compiled with them and may
+/// call `$persp`.
+#[cfg(target_arch = "x86_64")]
+macro_rules! isa_kernels {
+    ($persp:ident, $warm:expr, $premultiply:expr, $over:expr, $closed:expr) => {
+        composite::With(
+            $warm,
+            $premultiply,
+            $over,
+            $closed,
+            |job: composite::PerspectiveSlice<'_, '_>| $persp(job),
+        )
+    };
+}
+
 band_compositor! {
     /// [`composite_band`] for the slices at positions `slices` of the front-to-back
     /// order (`0..view.dims[2]` is the whole frame), asking `keep_going` before every
@@ -350,7 +397,8 @@ band_compositor! {
     &composite::Portable
 }
 
-band_compositor! {
+#[cfg(target_arch = "x86_64")]
+isa_band_compositor! {
     /// [`composite_band_until`] for baseline x86-64 (SSE2): the portable kernels, but
     /// the rows ahead are warmed with prefetch instructions instead of loads, as in
     /// [`composite_band_until_x86_v3`] (alternating frame by frame with the loads, 256²:
@@ -363,18 +411,19 @@ band_compositor! {
     ///
     /// None beyond running on x86-64: SSE and SSE2 are part of its baseline. The
     /// function is `unsafe` to call only because it enables target features.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "sse,sse2")]
     composite_band_until_x86_64,
-    &composite::With(
+    perspective_x86_64,
+    "sse,sse2",
+    [
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply,
         composite::over_run_unranked,
-        composite::closed_bits
-    )
+        composite::closed_bits,
+    ]
 }
 
-band_compositor! {
+#[cfg(target_arch = "x86_64")]
+isa_band_compositor! {
     /// [`composite_band_until`] compiled for x86-64-v3 (AVX2, BMI1/2, FMA, LZCNT,
     /// POPCNT): the compositing loops are the same integer code, so the image is
     /// bit-identical, but the compiler may use 256-bit vectors and 32-bit vector
@@ -393,18 +442,19 @@ band_compositor! {
     /// The CPU must have every feature listed above; running it on one that lacks any
     /// is undefined behaviour. Check at run time with `is_x86_feature_detected!` first
     /// (the file frontend's `isa` module does).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt")]
     composite_band_until_x86_v3,
-    &composite::With(
+    perspective_x86_v3,
+    "avx2,bmi1,bmi2,fma,lzcnt,popcnt",
+    [
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply_sse41!(),
         composite::over_run_simd!(avx2),
-        composite::closed_bits_avx2!()
-    )
+        composite::closed_bits_avx2!(),
+    ]
 }
 
-band_compositor! {
+#[cfg(target_arch = "x86_64")]
+isa_band_compositor! {
     /// [`composite_band_until`] compiled for x86-64-v4 (v3 plus AVX-512
     /// F/BW/VL/DQ/CD), bit-identical like [`composite_band_until_x86_v3`]; its over
     /// kernel takes four pixels a step.
@@ -412,17 +462,15 @@ band_compositor! {
     /// # Safety
     ///
     /// As for [`composite_band_until_x86_v3`], with the AVX-512 features too.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(
-        enable = "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd"
-    )]
     composite_band_until_x86_v4,
-    &composite::With(
+    perspective_x86_v4,
+    "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd",
+    [
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply_sse41!(),
         composite::over_run_simd!(avx512),
-        composite::closed_bits_avx2!()
-    )
+        composite::closed_bits_avx2!(),
+    ]
 }
 
 /// The body of the `composite_band_until` variants, inlined into each so that it and the
