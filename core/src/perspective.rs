@@ -163,7 +163,7 @@ impl AxisMap {
     /// Voxels under pixel `u`'s footprint: the first index, and Q15 weights (summing to
     /// one) in `out`; returns the count. Voxels outside `0..n` keep their weight slot
     /// and are skipped by the caller.
-    #[inline]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn taps(&self, u: i64, out: &mut [u32; MAX_TAPS]) -> (i64, usize) {
         let lo = u * self.w - self.a - self.w / 2;
         let hi = lo + self.w;
@@ -404,10 +404,12 @@ pub(crate) fn composite_slice_in(
             for x in u..e {
                 // Colours are premultiplied, so a pixel whose taps have no opacity has
                 // no colour either: its opacity is summed first.
-                let alpha: u32 = taps
-                    .iter()
-                    .map(|&(r, w)| w * r.get(x - lo).map_or(0, |h| h[3] as u32))
-                    .sum();
+                let mut alpha = 0u32;
+                for &(r, w) in taps {
+                    if let Some(h) = r.get(x - lo) {
+                        alpha += w * h[3] as u32;
+                    }
+                }
                 if alpha == 0 {
                     continue;
                 }
@@ -468,7 +470,7 @@ struct Readers<'a, 'b> {
 impl Readers<'_, '_> {
     /// Bit `t` set if pixel `u + t` is open in some reading scanline, for `t` in `0..64`
     /// (all set when no scanline of the band reads the row, as nothing is known closed).
-    #[inline]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn open_bits(&self, u: usize) -> u64 {
         if self.count == 0 {
             return u64::MAX;
@@ -504,14 +506,19 @@ impl<'r, 'a, 'b> OpenRuns<'r, 'a, 'b> {
     }
 
     /// Loads the bits of the next 64 pixels (fewer at the end): `None` past the end.
-    #[inline]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn load(&mut self) -> Option<u64> {
         if self.next >= self.end {
             return None;
         }
         self.at = self.next;
         self.next = self.at.saturating_add(64);
-        let open = self.readers.map_or(u64::MAX, |r| r.open_bits(self.at));
+        // A `match`, not `map_or`: left out of line, that kept the readers' bitmaps
+        // out of the instruction-set builds.
+        let open = match self.readers {
+            Some(r) => r.open_bits(self.at),
+            None => u64::MAX,
+        };
         Some(open & opaque::ones(self.end - self.at))
     }
 }
@@ -519,6 +526,7 @@ impl<'r, 'a, 'b> OpenRuns<'r, 'a, 'b> {
 impl Iterator for OpenRuns<'_, '_, '_> {
     type Item = (usize, usize);
 
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn next(&mut self) -> Option<(usize, usize)> {
         while self.bits == 0 {
             self.bits = self.load()?;
@@ -622,7 +630,9 @@ impl<'r> Shader<'r> {
 /// pixels its non-transparent runs reach, except pixels every reader has made opaque;
 /// `shade` is asked for the voxels of each run of the other pixels before they are
 /// filtered. Returns the written range.
+/// Inlined on x86-64 so that the instruction-set builds compile it with their features.
 #[allow(clippy::too_many_arguments)]
+#[cfg_attr(target_arch = "x86_64", inline(always))]
 fn filter_row(
     out: &mut [Rgba],
     row: &mut Row<'_>,
