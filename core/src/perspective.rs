@@ -682,12 +682,115 @@ fn filter_row(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::composite::Portable;
 
     fn weights(scale: f64, origin: f64, u: i64) -> (i64, heapless::Vec<u32, MAX_TAPS>) {
         let m = AxisMap::new(scale, origin);
         let mut w = [0; MAX_TAPS];
         let (first, n) = m.taps(u, &mut w);
         (first, w[..n].iter().copied().collect())
+    }
+
+    #[test]
+    fn open_runs_are_the_pixels_some_reader_has_open() {
+        // Random opaque bitmaps on four scanlines 200 pixels wide (runs cross the 64-pixel
+        // windows), random readers among them and random ranges: the runs must be the
+        // pixels of the range open in some reader (all of them without readers or with
+        // none), in order, disjoint, non-empty and not touching.
+        const W: usize = 200;
+        let mut rng = crate::xorshift(0x0be5_4ea1);
+        let mut next = |m: usize| (rng() % (m as u64 + 1)) as usize;
+        for round in 0..400 {
+            let mut pixels = [[0u16; 4]; 4 * W];
+            let mut links = [0; 4 * W];
+            let mut img = Intermediate::band(W, 20, 8, 4, &mut pixels, &mut links).unwrap();
+            let dense = next(3);
+            for r in 0..4 {
+                let (_, line) = img.scanline_mut(r);
+                let mut u = 0;
+                while u < W {
+                    let len = 1 + next(if dense == 0 { 150 } else { 8 });
+                    if next(3) < dense.max(1) {
+                        (u..(u + len).min(W)).for_each(|p| opaque::mark(line, p));
+                    }
+                    u += len;
+                }
+            }
+            let first = next(3);
+            let count = next(4 - first);
+            let readers = Readers {
+                img: &img,
+                first,
+                count,
+            };
+            let (a, b) = (next(W), next(W));
+            let (u, end) = (a.min(b), a.max(b));
+            let with = round % 4 != 0;
+            let open = |p: usize| {
+                !with
+                    || count == 0
+                    || (first..first + count).any(|r| !opaque::is_opaque(img.opaque_line(r), p))
+            };
+            let mut seen = [false; W];
+            let mut last_end = None;
+            for (p0, p1) in OpenRuns::new(with.then_some(&readers), u, end) {
+                assert!(
+                    u <= p0 && p0 < p1 && p1 <= end,
+                    "round {round}: run {p0}..{p1}"
+                );
+                if let Some(e) = last_end {
+                    assert!(p0 > e, "round {round}: runs touch or overlap at {p0}");
+                }
+                last_end = Some(p1);
+                seen[p0..p1].iter_mut().for_each(|s| *s = true);
+            }
+            for (p, &got) in seen.iter().enumerate() {
+                let want = (u..end).contains(&p) && open(p);
+                assert_eq!(got, want, "round {round}: pixel {p} of {u}..{end}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_shader_shades_each_asked_visible_voxel_once_and_nothing_else() {
+        // Random scanlines (`random_scanline`) and random requests whose starts never
+        // decrease: a visible voxel
+        // must come out as the eager fill shades it when a request from its start on
+        // covered it, and stay zero otherwise; the extent covers every shaded voxel.
+        const NI: usize = 150;
+        let mut rng = crate::xorshift(0x5ade_0f11);
+        let mut next = |m: usize| (rng() % (m as u64 + 1)) as usize;
+        let plain = crate::composite::PlainTables::new();
+        let t = plain.get();
+        for round in 0..300 {
+            let (runs, voxels): (heapless::Vec<u8, 400>, heapless::Vec<Voxel, NI>) =
+                crate::composite::random_scanline(NI, &mut |m| next(m as usize) as u32);
+            let mut eager_buf = [[0u16; 4]; NI + 2];
+            let mut eager = Row::new(&mut eager_buf, false);
+            eager.fill(&runs, &voxels, &t, ONE, 0, None, None, &Portable);
+            let mut lazy_buf = [[3u16; 4]; NI + 2];
+            let mut lazy = Row::new(&mut lazy_buf, false);
+            let mut shader = Shader::new(&runs, &voxels, NI);
+            let mut asked = [false; NI];
+            let mut from = next(10) as i64 - 5;
+            for _ in 0..next(6) {
+                let to = from + next(60) as i64 - 10;
+                shader.upto(&mut lazy, (from, to), &t, 0, &Portable);
+                for x in from.max(0)..to.min(NI as i64) {
+                    asked[x as usize] = true;
+                }
+                from += next(50) as i64;
+            }
+            for (x, &was_asked) in asked.iter().enumerate() {
+                let (e, l) = (eager.buf[x + 1], lazy.buf[x + 1]);
+                if was_asked {
+                    assert_eq!(l, e, "round {round}: voxel {x} was asked for");
+                } else {
+                    assert_eq!(l, [0; 4], "round {round}: voxel {x} was not asked for");
+                }
+            }
+            assert!(lazy.zero_outside_extent());
+        }
     }
 
     #[test]
