@@ -97,6 +97,8 @@ pub struct Settings {
     pub ert: f64,
     /// Lighting when shading is on.
     pub lighting: Lighting,
+    /// Field of view (degrees) of perspective frames.
+    pub fov: f64,
 }
 
 /// The volume and its derived data.
@@ -146,8 +148,8 @@ impl Scene {
             color: scene::color_table(&colors, encoded_range)?,
             lighting: (view.shading && !mip).then(|| self.settings.lighting.clone()),
             ert_threshold: self.settings.ert,
-            depth_cue: (view.depth_cue && !mip).then_some(state::DEPTH_CUE),
-            shadows: shadows && view.shadows && view.shading && !mip,
+            depth_cue: (view.depth_cue && !mip && !view.perspective).then_some(state::DEPTH_CUE),
+            shadows: shadows && view.shadows && view.shading && !mip && !view.perspective,
         })
     }
 
@@ -423,6 +425,7 @@ fn draw<S: shearwarp_core::source::SliceSource + Clone + Send>(
 ) -> Result<Drawn, Error> {
     let camera = scene.camera(view);
     let look = scene.look(view, range, true)?;
+    comp.set_perspective(view.perspective.then_some(scene.settings.fov));
     let cancelled = || Error::Source {
         reason: render::CANCELLED,
     };

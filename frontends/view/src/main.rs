@@ -59,6 +59,12 @@ struct Cli {
     /// Early ray termination opacity (1 disables it).
     #[arg(long, default_value_t = 0.95)]
     ert: f64,
+    /// Start in perspective projection (the O key toggles it).
+    #[arg(long)]
+    perspective: bool,
+    /// Field of view of perspective frames, degrees (1..=150).
+    #[arg(long, default_value_t = 30.0)]
+    fov: f64,
     /// Milliseconds without input before refining to full quality.
     #[arg(long, default_value_t = 150)]
     refine_after_ms: u64,
@@ -187,6 +193,8 @@ struct App {
     size: [usize; 2],
     min_opacity: f64,
     ert: f64,
+    /// Field of view of perspective frames, degrees.
+    fov: f64,
     lighting: Lighting,
     threads: usize,
     refine_after: Duration,
@@ -378,10 +386,19 @@ impl App {
         if v.shading && !mip {
             t += " | shading";
         }
-        if v.depth_cue && !mip {
-            t += " | fog";
+        if v.perspective {
+            t += &format!(" | perspective {}°", self.fov);
         }
-        if v.shadows && v.shading && !mip {
+        if v.depth_cue && !mip {
+            t += if v.perspective {
+                " | no fog in perspective"
+            } else {
+                " | fog"
+            };
+        }
+        if v.shadows && v.shading && !mip && v.perspective {
+            t += " | no shadows in perspective";
+        } else if v.shadows && v.shading && !mip {
             t += match &self.shown {
                 Some(s) if s.note.is_some() => " | no shadows for this view",
                 _ => " | shadows",
@@ -426,7 +443,10 @@ impl App {
         if shadows {
             a.push("--shadows".into());
         }
-        if view.depth_cue && !view.is_mip() {
+        if view.perspective {
+            a.push(format!("--projection perspective --fov {}", self.fov));
+        }
+        if view.depth_cue && !view.is_mip() && !view.perspective {
             let c = state::DEPTH_CUE;
             a.push(format!("--depth-cue {}:{}", c.front, c.density));
         }
@@ -465,7 +485,7 @@ impl App {
         );
         let shadows = match &self.shown {
             Some(s) if s.job.view == *v => s.shadows,
-            _ => v.shadows && v.shading && !v.is_mip(),
+            _ => v.shadows && v.shading && !v.is_mip() && !v.perspective,
         };
         self.print_cli(v, shadows);
     }
@@ -516,7 +536,7 @@ impl App {
         match spec.save(&path) {
             Ok(()) => {
                 println!("wrote {}", path.display());
-                let shadows = v.shadows && v.shading && !v.is_mip();
+                let shadows = v.shadows && v.shading && !v.is_mip() && !v.perspective;
                 self.print_cli(v, shadows);
             }
             Err(e) => eprintln!(
@@ -624,6 +644,7 @@ fn map_key(k: Key, shift: bool) -> Option<ViewKey> {
         Key::M => ViewKey::Mip,
         Key::W => ViewKey::Shadows,
         Key::D => ViewKey::DepthCue,
+        Key::O => ViewKey::Perspective,
         Key::S => ViewKey::Screenshot,
         Key::T => ViewKey::SaveTf,
         Key::P => ViewKey::Print,
@@ -663,6 +684,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
     if !(cli.ert > 0.0 && cli.ert <= 1.0) {
         return Err("--ert must be in (0, 1]".into());
     }
+    if !(1.0..=150.0).contains(&cli.fov) {
+        return Err("--fov must be in 1..=150 degrees".into());
+    }
     let threads = cli
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -697,6 +721,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             min_opacity: cli.min_opacity,
             ert: cli.ert,
             lighting: lighting.clone(),
+            fov: cli.fov,
         },
     )?;
     let range = scene.range;
@@ -719,7 +744,10 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
 
     let latest = Arc::new(AtomicU64::new(0));
     let (jobs, done, render_thread) = engine::spawn(scene, Arc::clone(&latest));
-    let home = ViewState::new(cli.rotate_x, cli.rotate_y, cli.preset - 1, !cli.no_shading);
+    let home = ViewState {
+        perspective: cli.perspective,
+        ..ViewState::new(cli.rotate_x, cli.rotate_y, cli.preset - 1, !cli.no_shading)
+    };
     let now = Instant::now();
     let mut app = App {
         volume: cli.volume.clone(),
@@ -729,6 +757,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         size: [width, height],
         min_opacity: cli.min_opacity,
         ert: cli.ert,
+        fov: cli.fov,
         lighting,
         threads,
         refine_after: Duration::from_millis(cli.refine_after_ms),

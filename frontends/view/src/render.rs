@@ -115,6 +115,12 @@ impl Compositor {
         self.renderer.threads()
     }
 
+    /// Renders perspective views with a `fov` (degrees) field of view, or parallel
+    /// projection with `None` (the file frontend's `--projection perspective --fov`).
+    pub fn set_perspective(&mut self, fov: Option<f64>) {
+        self.renderer.set_perspective(fov);
+    }
+
     /// Renders `source` under `camera` and `look`, placed in the window by `map`;
     /// returns `camera.width × camera.height` RGBA8 pixels (premultiplied over black).
     pub fn render<S: SliceSource + Clone + Send>(
@@ -250,6 +256,52 @@ mod tests {
     }
 
     #[test]
+    fn perspective_frames_equal_the_file_frontend_and_zoom_about_the_centre() {
+        let raw = ball();
+        let enc = scene::encode(&raw, &class()).unwrap();
+        let vol = enc.volume().unwrap();
+        let id = ImageMap::identity(&enc.grid);
+        for (threads, c, l, fov) in [
+            (1, cam(-70.0, -35.0), look(Mode::Composite, true), 30.0),
+            (2, cam(20.0, 100.0), look(Mode::Composite, false), 60.0),
+            (3, cam(95.0, 10.0), look(Mode::Mip, false), 90.0),
+        ] {
+            let mut comp = Compositor::new(&enc.grid, threads);
+            comp.set_perspective(Some(fov));
+            let mine = comp.render(&vol, &c, &l, &id).unwrap();
+            let mut r = Renderer::with_threads(&enc.grid, threads);
+            r.set_perspective(Some(fov));
+            let theirs = r.render(&mut vol.clone(), &c, &l).unwrap();
+            assert!(mine == theirs, "threads {threads}, {fov}°");
+            // The window's zoom and pan act on the projected image as in parallel.
+            let zoomed = ImageMap {
+                zoom: 1.5,
+                pan: [4.0, -3.0],
+                ..id
+            };
+            let (base, z) = (
+                centroid(&mine, c.width),
+                centroid(&comp.render(&vol, &c, &l, &zoomed).unwrap(), c.width),
+            );
+            let centre = [48.0, 40.0];
+            for a in 0..2 {
+                let want = centre[a] + 1.5 * (base[a] - centre[a]) + zoomed.pan[a];
+                assert!(
+                    (z[a] - want).abs() < 0.35,
+                    "{fov}°, axis {a}: {z:?} vs {want}"
+                );
+            }
+            // Back to parallel projection.
+            comp.set_perspective(None);
+            let parallel = comp.render(&vol, &c, &l, &id).unwrap();
+            let theirs = Renderer::with_threads(&enc.grid, 1)
+                .render(&mut vol.clone(), &c, &l)
+                .unwrap();
+            assert!(parallel == theirs, "threads {threads}, parallel again");
+        }
+    }
+
+    #[test]
     fn shadows_and_depth_cue_equal_the_file_frontend() {
         let raw = ball();
         let enc = scene::encode(&raw, &class()).unwrap();
@@ -309,7 +361,14 @@ mod tests {
         let low = scene::encode(&h, &class()).unwrap().as_level(&full.grid);
         let l = look(Mode::Mip, false);
         let mut comp = Compositor::new(&full.grid, 2);
-        for c in [cam(0.0, 0.0), cam(-70.0, -35.0), cam(33.0, 120.0)] {
+        for (c, fov) in [
+            (cam(0.0, 0.0), None),
+            (cam(-70.0, -35.0), None),
+            (cam(33.0, 120.0), None),
+            (cam(-70.0, -35.0), Some(60.0)),
+            (cam(33.0, 120.0), Some(30.0)),
+        ] {
+            comp.set_perspective(fov);
             for (zoom, pan) in [(1.0, [0.0, 0.0]), (2.0, [-6.0, 5.0])] {
                 let map = ImageMap {
                     zoom,
@@ -320,7 +379,10 @@ mod tests {
                 let b = comp.render(&low.volume().unwrap(), &c, &l, &map).unwrap();
                 let (ca, cb) = (centroid(&a, c.width), centroid(&b, c.width));
                 for k in 0..2 {
-                    assert!((ca[k] - cb[k]).abs() < 0.3 * zoom, "{c:?} {ca:?} {cb:?}");
+                    assert!(
+                        (ca[k] - cb[k]).abs() < 0.3 * zoom,
+                        "{c:?} {fov:?} {ca:?} {cb:?}"
+                    );
                 }
             }
         }

@@ -54,6 +54,9 @@ pub struct ViewState {
     pub depth_cue: bool,
     /// Shadows toward the first light (composite mode with shading only).
     pub shadows: bool,
+    /// Perspective projection (the field of view is a setting); depth cueing and
+    /// shadows are parallel-only and left out while it is on.
+    pub perspective: bool,
 }
 
 impl ViewState {
@@ -71,6 +74,7 @@ impl ViewState {
             mip: false,
             depth_cue: false,
             shadows: false,
+            perspective: false,
         }
     }
 
@@ -119,6 +123,7 @@ pub enum ViewKey {
     Mip,
     Shadows,
     DepthCue,
+    Perspective,
     Screenshot,
     SaveTf,
     Print,
@@ -175,6 +180,11 @@ pub const KEYS: &[(&str, &str, ViewKey)] = &[
         ViewKey::Shadows,
     ),
     ("d", "D: depth cueing (fog) on/off", ViewKey::DepthCue),
+    (
+        "o",
+        "O: perspective projection on/off (parallel-only: depth cueing, shadows)",
+        ViewKey::Perspective,
+    ),
     ("s", "S: screenshot to PNG", ViewKey::Screenshot),
     (
         "t",
@@ -278,6 +288,7 @@ pub fn apply(view: &mut ViewState, home: &ViewState, input: Input, size: [usize;
             ViewKey::Mip => view.mip = !view.mip,
             ViewKey::Shadows => view.shadows = !view.shadows,
             ViewKey::DepthCue => view.depth_cue = !view.depth_cue,
+            ViewKey::Perspective => view.perspective = !view.perspective,
             ViewKey::Screenshot => return Request::Screenshot,
             ViewKey::SaveTf => return Request::SaveTf,
             ViewKey::Print => return Request::Print,
@@ -365,6 +376,9 @@ mod tests {
             Request::None
         );
         assert!(v.shadows);
+        apply(&mut v, &home, Input::Key(ViewKey::Perspective), size);
+        assert!(v.perspective);
+        assert_eq!(ViewKey::from_name("O"), Some(ViewKey::Perspective));
         apply(&mut v, &home, Input::Key(ViewKey::ResetView), size);
         assert_eq!((v.rotate_x, v.rotate_y, v.zoom), (-70.0, -35.0, 1.0));
         assert_eq!(wrap_deg(190.0), -170.0);
