@@ -160,32 +160,20 @@ impl AxisMap {
         }
     }
 
-    /// Voxels under pixel `u`'s footprint: the first index, and Q15 weights (summing to
-    /// one) in `out`; returns the count. Voxels outside `0..n` keep their weight slot
-    /// and are skipped by the caller.
-    #[cfg_attr(target_arch = "x86_64", inline(always))]
-    fn taps(&self, u: i64, out: &mut [u32; MAX_TAPS]) -> (i64, usize) {
-        let lo = u * self.w - self.a - self.w / 2;
-        let hi = lo + self.w;
-        let first = (lo + P1 / 2).div_euclid(P1);
-        let mut prev = 0u32;
-        let mut n = 0;
-        let mut edge = first * P1 + P1 / 2; // right edge of voxel `first`
-        while n < MAX_TAPS {
-            let cum = if edge >= hi {
-                ONE
-            } else {
-                (((edge - lo) * self.recip) >> 16).clamp(0, ONE as i64) as u32
-            };
-            out[n] = cum - prev.min(cum);
-            prev = cum;
-            n += 1;
-            if edge >= hi {
-                break;
-            }
-            edge += P1;
+    /// The taps of the footprint `[lo, lo + w)` (Q16), left to right.
+    #[inline(always)]
+    fn taps_from(&self, lo: i64) -> Taps {
+        // The voxel whose cell holds `lo`.
+        let first = (lo + P1 / 2) >> P;
+        Taps {
+            lo,
+            hi: lo + self.w,
+            recip: self.recip,
+            voxel: first,
+            edge: first * P1 + P1 / 2,
+            prev: 0,
+            left: MAX_TAPS,
         }
-        (first, n)
     }
 
     /// The left end of pixel `u`'s footprint, Q16: it moves right by `w` a pixel.
@@ -194,34 +182,40 @@ impl AxisMap {
         u * self.w - self.a - self.w / 2
     }
 
+    /// Voxels under pixel `u`'s footprint: the first index, and Q15 weights (summing to
+    /// one) in `out`; returns the count. Voxels outside `0..n` keep their weight slot
+    /// and are skipped by the caller.
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
+    fn taps(&self, u: i64, out: &mut [u32; MAX_TAPS]) -> (i64, usize) {
+        let taps = self.taps_from(self.left(u));
+        let first = taps.voxel;
+        let mut n = 0;
+        for (o, (_, w)) in out.iter_mut().zip(taps) {
+            *o = w;
+            n += 1;
+        }
+        (first, n)
+    }
+
+    /// The voxels `first..end` under pixel `u`'s footprint.
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
+    fn voxels(&self, u: i64) -> (i64, i64) {
+        let taps = self.taps_from(self.left(u));
+        let first = taps.voxel;
+        (first, first + taps.count() as i64)
+    }
+
     /// The footprint `[lo, lo + w)` filtered over the voxels of `row` (voxel `i` at
-    /// `row[i + 1]`, entries outside the row reading as zero): the taps of
-    /// [`AxisMap::taps`] applied as they are found, rounded to Q15.
+    /// `row[i + 1]`, entries outside the row reading as zero), rounded to Q15.
     #[inline(always)]
     fn filter(&self, lo: i64, row: &[Rgba]) -> Rgba {
-        let hi = lo + self.w;
-        // The voxel whose cell holds `lo`, and its cell's right edge.
-        let first = (lo + P1 / 2) >> P;
-        let mut edge = first * P1 + P1 / 2;
-        let mut prev = 0u32;
         let mut acc = [0u32; 4];
-        for i in (first..).take(MAX_TAPS) {
-            let cum = if edge >= hi {
-                ONE
-            } else {
-                (((edge - lo) * self.recip) >> 16).clamp(0, ONE as i64) as u32
-            };
-            let w = cum - prev.min(cum);
-            prev = cum;
+        for (i, w) in self.taps_from(lo) {
             // Index i + 1 wraps for i < −1 and is then out of the row, as past its end.
             let px = row.get((i + 1) as usize).copied().unwrap_or_default();
             for c in 0..4 {
                 acc[c] += w * px[c] as u32;
             }
-            if edge >= hi {
-                break;
-            }
-            edge += P1;
         }
         acc.map(|x| ((x + (1 << 14)) >> 15).min(ONE) as u16)
     }
@@ -233,6 +227,46 @@ impl AxisMap {
         let left = a as i64 * P1 - P1 / 2 - w / 2 + self.a;
         let right = b as i64 * P1 - P1 / 2 + w / 2 + self.a;
         (left.div_euclid(w) + 1, right.div_euclid(w) + 1)
+    }
+}
+
+/// The taps of one footprint ([`AxisMap::taps_from`]), left to right: each voxel's index
+/// and its Q15 weight, the overlap of its cell with the footprint over the footprint's
+/// width, found from the cumulative overlap at the cell's right edge (the weights sum to
+/// one). At most [`MAX_TAPS`].
+struct Taps {
+    lo: i64,
+    hi: i64,
+    recip: i64,
+    /// The next tap's voxel, and its cell's right edge (Q16).
+    voxel: i64,
+    edge: i64,
+    /// The cumulative weight up to the previous tap.
+    prev: u32,
+    /// Taps still allowed: zero after the one whose cell reaches the footprint's end.
+    left: usize,
+}
+
+impl Iterator for Taps {
+    type Item = (i64, u32);
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<(i64, u32)> {
+        if self.left == 0 {
+            return None;
+        }
+        let last = self.edge >= self.hi;
+        let cum = if last {
+            ONE
+        } else {
+            (((self.edge - self.lo) * self.recip) >> 16).clamp(0, ONE as i64) as u32
+        };
+        let tap = (self.voxel, cum - self.prev.min(cum));
+        self.prev = cum;
+        self.left = if last { 0 } else { self.left - 1 };
+        self.voxel += 1;
+        self.edge += P1;
+        Some(tap)
     }
 }
 
@@ -309,7 +343,6 @@ pub(crate) fn composite_slice_in(
     }; MAX_TAPS];
     let xs = AxisMap::new(ss.scale, ss.origin[0]);
     let ys = AxisMap::new(ss.scale, ss.origin[1]);
-    let mut wx = [0u32; MAX_TAPS];
     let mut wy = [0u32; MAX_TAPS];
     let rows_held = img.pixels().len() / width.max(1);
     // Only scanlines with a tap on the rows from the first non-empty one to the last
@@ -366,15 +399,7 @@ pub(crate) fn composite_slice_in(
                 row.clear();
                 let mut shader = Shader::new(runs, voxels, ni);
                 let mut put = |r: &mut Row<'_>, range| shader.upto(r, range, tables, j, kern);
-                slots[s] = filter_row(
-                    out,
-                    &mut row,
-                    &mut put,
-                    runs,
-                    &xs,
-                    &mut wx,
-                    readers.as_ref(),
-                );
+                slots[s] = filter_row(out, &mut row, &mut put, runs, &xs, readers.as_ref());
                 slots[s].j = j;
             }
             lo = lo.min(slots[s].lo);
@@ -631,7 +656,6 @@ impl<'r> Shader<'r> {
 /// `shade` is asked for the voxels of each run of the other pixels before they are
 /// filtered. Returns the written range.
 /// Inlined on x86-64 so that the instruction-set builds compile it with their features.
-#[allow(clippy::too_many_arguments)]
 #[cfg_attr(target_arch = "x86_64", inline(always))]
 fn filter_row(
     out: &mut [Rgba],
@@ -639,7 +663,6 @@ fn filter_row(
     shade: &mut impl FnMut(&mut Row<'_>, (i64, i64)),
     runs: &[u8],
     xs: &AxisMap,
-    wx: &mut [u32; MAX_TAPS],
     readers: Option<&Readers<'_, '_>>,
 ) -> Slot {
     let width = out.len() as i64;
@@ -660,9 +683,8 @@ fn filter_row(
         for (p0, p1) in OpenRuns::new(readers, ua as usize, ub as usize) {
             // The taps move right with the pixel: the run reads voxels from its first
             // pixel's first tap to its last pixel's last.
-            let (first, _) = xs.taps(p0 as i64, wx);
-            let (last, n) = xs.taps(p1 as i64 - 1, wx);
-            shade(row, (first, last + n as i64));
+            let ((first, _), (_, end)) = (xs.voxels(p0 as i64), xs.voxels(p1 as i64 - 1));
+            shade(row, (first, end));
             let mut lo = xs.left(p0 as i64);
             for o in out.get_mut(p0..p1).unwrap_or_default() {
                 *o = xs.filter(lo, row.buf);
