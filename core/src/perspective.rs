@@ -704,7 +704,7 @@ fn filter_row(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::composite::Portable;
+    use crate::composite::{Lit, Portable};
 
     fn weights(scale: f64, origin: f64, u: i64) -> (i64, heapless::Vec<u32, MAX_TAPS>) {
         let m = AxisMap::new(scale, origin);
@@ -789,7 +789,7 @@ mod tests {
                 crate::composite::random_scanline(NI, &mut |m| next(m as usize) as u32);
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill(&runs, &voxels, &t, ONE, 0, None, None, &Portable);
+            eager.fill(&runs, &voxels, &t, 0, None, &Portable, &Lit);
             let mut lazy_buf = [[3u16; 4]; NI + 2];
             let mut lazy = Row::new(&mut lazy_buf, false);
             let mut shader = Shader::new(&runs, &voxels, NI);
