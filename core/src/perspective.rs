@@ -22,9 +22,7 @@
 //! for the pixel's own step.
 
 use crate::classify::Voxel;
-use crate::composite::{
-    Intermediate, Kernels, Mode, PerspectiveSlice, Rgba, Row, SliceTables, Spans,
-};
+use crate::composite::{Intermediate, Kernels, Mode, Rgba, Row, SliceJob, SliceTables, Spans};
 use crate::error::{need, Error};
 use crate::fixed::ONE;
 use crate::opaque;
@@ -282,20 +280,14 @@ struct Slot {
 /// must hold [`row_buffer_len`]`(view)` entries, all zero if `clean` (they are all zero
 /// again on success). `kern` shades the voxels. The portable kernels call this, the
 /// instruction-set builds [`composite_slice_in`] inlined into a function of their own.
-pub(crate) fn composite_slice(
-    job: PerspectiveSlice<'_, '_>,
-    kern: &impl Kernels,
-) -> Result<(), Error> {
+pub(crate) fn composite_slice(job: SliceJob<'_, '_>, kern: &impl Kernels) -> Result<(), Error> {
     composite_slice_in(job, kern)
 }
 
 /// The body of [`composite_slice`].
 #[inline(always)]
-pub(crate) fn composite_slice_in(
-    job: PerspectiveSlice<'_, '_>,
-    kern: &impl Kernels,
-) -> Result<(), Error> {
-    let PerspectiveSlice {
+pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> Result<(), Error> {
+    let SliceJob {
         img,
         slice,
         k,
@@ -704,7 +696,7 @@ fn filter_row(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::composite::{Lit, Portable};
+    use crate::composite::{mark_random_stretches, Lit, Portable};
 
     fn weights(scale: f64, origin: f64, u: i64) -> (i64, heapless::Vec<u32, MAX_TAPS>) {
         let m = AxisMap::new(scale, origin);
@@ -729,14 +721,7 @@ mod tests {
             let dense = next(3);
             for r in 0..4 {
                 let (_, line) = img.scanline_mut(r);
-                let mut u = 0;
-                while u < W {
-                    let len = 1 + next(if dense == 0 { 150 } else { 8 });
-                    if next(3) < dense.max(1) {
-                        (u..(u + len).min(W)).for_each(|p| opaque::mark(line, p));
-                    }
-                    u += len;
-                }
+                mark_random_stretches(line, W, (150, 8), dense, &mut next);
             }
             let first = next(3);
             let count = next(4 - first);

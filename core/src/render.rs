@@ -355,7 +355,7 @@ macro_rules! isa_band_compositor {
         )]
         #[target_feature(enable = $features)]
         #[inline(never)]
-        fn $persp(job: composite::PerspectiveSlice<'_, '_>) -> Result<(), Error> {
+        fn $persp(job: composite::SliceJob<'_, '_>) -> Result<(), Error> {
             let kern = isa_kernels!($persp, $warm, $premultiply, $over, $closed);
             crate::perspective::composite_slice_in(job, &kern)
         }
@@ -373,7 +373,7 @@ macro_rules! isa_kernels {
             $premultiply,
             $over,
             $closed,
-            |job: composite::PerspectiveSlice<'_, '_>| $persp(job),
+            |job: composite::SliceJob<'_, '_>| $persp(job),
         )
     };
 }
