@@ -401,9 +401,9 @@ impl<'b> Row<'b> {
         }
     }
 
-    /// Shades voxels `x..y` of row `j` from `src` (voxel `x` first), unscaled and
-    /// unshadowed, into a row that holds the row's other shaded voxels or nothing (the
-    /// perspective compositor shades a row piece by piece, as its pixels ask).
+    /// `shading` shades voxels `x..y` of row `j` from `src` (voxel `x` first) into a row
+    /// that holds the row's other shaded voxels or nothing (the perspective compositor
+    /// shades a row piece by piece, as its pixels ask).
     #[cfg_attr(target_arch = "x86_64", inline(always))]
     pub(crate) fn shade(
         &mut self,
@@ -412,11 +412,12 @@ impl<'b> Row<'b> {
         t: &SliceTables<'_>,
         j: i64,
         k: &impl Kernels,
+        shading: &impl Shading,
     ) {
         let Some(dst) = self.buf.get_mut(x + 1..y + 1) else {
             return;
         };
-        Lit.shade_run(dst, src, x, t, j, k);
+        shading.shade_run(dst, src, x, t, j, k);
         self.wrote(x + 1, y + 1);
         self.dirty = match self.extent() {
             Some((lo, hi)) => (lo.min(x + 1), hi.max(y + 1)),

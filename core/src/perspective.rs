@@ -22,7 +22,9 @@
 //! for the pixel's own step.
 
 use crate::classify::Voxel;
-use crate::composite::{Intermediate, Kernels, Mode, Rgba, Row, SliceJob, SliceTables, Spans};
+use crate::composite::{
+    Intermediate, Kernels, Mode, Rgba, Row, Shading, SliceJob, SliceTables, Spans, Way,
+};
 use crate::error::{need, Error};
 use crate::fixed::ONE;
 use crate::opaque;
@@ -324,6 +326,10 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
     };
     let (voxel_row, ring_buf) = rows.split_at_mut_checked(ni + 2).ok_or(too_small)?;
     let mut row = Row::new(voxel_row, clean);
+    // How the slice's voxels are shaded, by the rule the parallel compositor uses:
+    // lit, or the scalar in MIP (perspective frames have neither shadows nor depth
+    // cueing).
+    let shading = Way::of(tables, None, ONE);
     let ring_buf = ring_buf.get_mut(..ring * width).ok_or(too_small)?;
     if !clean {
         ring_buf.fill([0; 4]);
@@ -390,7 +396,8 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
                 };
                 row.clear();
                 let mut shader = Shader::new(runs, voxels, ni);
-                let mut put = |r: &mut Row<'_>, range| shader.upto(r, range, tables, j, kern);
+                let mut put =
+                    |r: &mut Row<'_>, range| shader.upto(r, range, tables, j, kern, &shading);
                 slots[s] = filter_row(out, &mut row, &mut put, runs, &xs, readers.as_ref());
                 slots[s].j = j;
             }
@@ -618,6 +625,7 @@ impl<'r> Shader<'r> {
         t: &SliceTables<'_>,
         j: i64,
         k: &impl Kernels,
+        shading: &impl Shading,
     ) {
         let clamp = |x: i64| x.clamp(0, self.ni as i64) as usize;
         let to = clamp(to);
@@ -636,7 +644,7 @@ impl<'r> Shader<'r> {
             // a < to and done < b, so x < y.
             let (x, y) = (a.max(self.done), b.min(to));
             let src = self.voxels.get(base + (x - a)..).unwrap_or_default();
-            row.shade(src, (x, y), t, j, k);
+            row.shade(src, (x, y), t, j, k, shading);
             self.done = y;
         }
         self.done = self.done.max(to);
@@ -782,7 +790,7 @@ mod tests {
             let mut from = next(10) as i64 - 5;
             for _ in 0..next(6) {
                 let to = from + next(60) as i64 - 10;
-                shader.upto(&mut lazy, (from, to), &t, 0, &Portable);
+                shader.upto(&mut lazy, (from, to), &t, 0, &Portable, &Lit);
                 for x in from.max(0)..to.min(NI as i64) {
                     asked[x as usize] = true;
                 }

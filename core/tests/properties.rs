@@ -508,6 +508,22 @@ proptest! {
                 .map_err(|e| TestCaseError::fail(format!("band composite failed: {e:?}")))?;
         }
         prop_assert!(banded == whole, "bands differ from the whole image");
+        // MIP reads the voxels' scalars, never their colours: other colours give the
+        // same image (a perspective frame once shaded MIP slices as lit ones).
+        if plain.mip {
+            let other: ColorTable = [[ONE as u16, 0, ONE as u16 / 3]; 256];
+            let s = settings(&plain, &other);
+            let mut shade = Box::new(ShadeTable::UNSHADED);
+            let frame = Frame::perspective(&grid, &plain.camera, fov, &s, &mut shade)
+                .map_err(|e| TestCaseError::fail(format!("recoloured frame failed: {e:?}")))?;
+            let tables = frame.tables(&shade, None);
+            let mut recoloured = vec![[0u16; 4]; iw * ih];
+            let mut img = Intermediate::new(iw, ih, &mut recoloured, &mut links)
+                .map_err(|e| TestCaseError::fail(format!("intermediate: {e:?}")))?;
+            render::composite_band(&mut src, &frame, &tables, &mut img, &mut rows, None)
+                .map_err(|e| TestCaseError::fail(format!("composite failed: {e:?}")))?;
+            prop_assert!(recoloured == whole, "MIP depends on the colours");
+        }
         let mut out = vec![[0u8; 4]; plain.camera.width * plain.camera.height];
         let mut row = vec![[0u8; 4]; plain.camera.width];
         let mut sink = FrameBuffer { width: plain.camera.width, pixels: &mut out };
