@@ -1455,9 +1455,8 @@ fn composite_slice_supersampled(
             let hi = ((b as i64 - 1) * one + tu) * ss;
             let ua = (lo.div_euclid(one) + 1).clamp(0, width as i64) as usize;
             let ub = (hi.div_euclid(one) + 1).clamp(0, width as i64) as usize;
-            let mut u = opaque::next_open(opaque, width, ua, ub);
-            while u < ub {
-                let e = opaque::open_run_end(opaque, width, u, ub);
+            let mut runs = opaque::OpenRuns::new(ua, ub);
+            while let Some((u, e)) = runs.next(opaque, width) {
                 for (u, px) in pixels.iter_mut().enumerate().take(e).skip(u) {
                     let pu = u as i64 * one / ss - tu;
                     let il = pu.div_euclid(one);
@@ -1471,7 +1470,6 @@ fn composite_slice_supersampled(
                         opaque::mark(opaque, u);
                     }
                 }
-                u = opaque::next_open(opaque, width, e, ub);
             }
         }
     }
@@ -1572,49 +1570,27 @@ fn over_span(
 ) {
     let width = pixels.len();
     let end = us.end.min(width);
-    // The open runs are found 64 pixels at a time from one read of the bitmap: marking
-    // a run closes pixels of that run only, so the window's bits for the pixels after
-    // it stay as they were read.
-    let mut at = us.start;
-    while at < end {
-        let mut open = opaque::open_bits(opaque, width, at as i64) & opaque::ones(end - at);
-        let mut next = at + 64;
-        while open != 0 {
-            let z = open.trailing_zeros() as usize;
-            let len = (!(open >> z)).trailing_zeros() as usize;
-            let u = at + z;
-            let e = if z + len < 64 {
-                open &= !opaque::ones(z + len);
-                u + len
-            } else {
-                // The run reaches the window's end and may go on past it; the next
-                // window starts where it ends.
-                open = 0;
-                next = opaque::open_run_end(opaque, width, at + 64, end);
-                next
-            };
-            // Pixels u..e read buffer entries u − n ..= e − n of both rows.
-            let bl = (u as i64 - taps.n as i64) as usize;
-            // In bounds: the compositors place the span inside the scanline and the
-            // taps inside the row buffers. The kernels read `px.len() + 1` entries of
-            // each row.
-            let (Some(px), Some(top), Some(bot)) =
-                (pixels.get_mut(u..e), taps.top.get(bl..), taps.bot.get(bl..))
-            else {
-                return;
-            };
-            let highest = kern.over_run(px, top, bot, taps.w);
-            // A pixel still at zero opacity was never composited, so it is not marked
-            // even when the threshold is zero (as in the per-pixel kernel). Most runs
-            // have no pixel that reached it, and the run's highest opacity says so
-            // without a look at each pixel (spheres256, callgrind: 9.7 % fewer
-            // instructions a frame).
-            let thr = ert.max(1);
-            if highest as u32 >= thr {
-                mark_closed(opaque, u, px, thr, kern);
-            }
+    // A pixel still at zero opacity was never composited, so it is not marked even when
+    // the threshold is zero (as in the per-pixel kernel).
+    let thr = ert.max(1);
+    let mut runs = opaque::OpenRuns::new(us.start, end);
+    while let Some((u, e)) = runs.next(opaque, width) {
+        // Pixels u..e read buffer entries u − n ..= e − n of both rows.
+        let bl = (u as i64 - taps.n as i64) as usize;
+        // In bounds: the compositors place the span inside the scanline and the taps
+        // inside the row buffers. The kernels read `px.len() + 1` entries of each row.
+        let (Some(px), Some(top), Some(bot)) =
+            (pixels.get_mut(u..e), taps.top.get(bl..), taps.bot.get(bl..))
+        else {
+            return;
+        };
+        let highest = kern.over_run(px, top, bot, taps.w);
+        // Most runs have no pixel that reached the threshold, and the run's highest
+        // opacity says so without a look at each pixel (spheres256, callgrind: 9.7 %
+        // fewer instructions a frame).
+        if highest as u32 >= thr {
+            mark_closed(opaque, u, px, thr, kern);
         }
-        at = next;
     }
 }
 

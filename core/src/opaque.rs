@@ -321,6 +321,58 @@ pub(crate) fn open_run_end<W: BitWord>(
     end
 }
 
+/// The runs of open pixels in a range of a scanline, front to back, from one read of the
+/// bitmap per 64 pixels rather than two per run. The caller may mark pixels of the run
+/// it was given opaque (compositing does) before it asks for the next: that leaves the
+/// bits of the pixels after the run as they were read. A run that reaches a window's end
+/// is followed into the next window.
+pub(crate) struct OpenRuns {
+    /// The window's first pixel.
+    at: usize,
+    /// Open pixels of the window not handed out yet, bit `t` for pixel `at + t`.
+    open: u64,
+    /// Where the next window starts.
+    next: usize,
+    end: usize,
+}
+
+impl OpenRuns {
+    /// The runs in `start..end`; the first window is read by the first [`OpenRuns::next`].
+    #[inline(always)]
+    pub(crate) fn new(start: usize, end: usize) -> Self {
+        OpenRuns {
+            at: start,
+            open: 0,
+            next: start,
+            end,
+        }
+    }
+
+    /// The next run `u..e` of open pixels of `line` (`width` pixels), `None` past the end.
+    #[inline(always)]
+    pub(crate) fn next<W: BitWord>(&mut self, line: &[W], width: usize) -> Option<(usize, usize)> {
+        while self.open == 0 {
+            if self.next >= self.end {
+                return None;
+            }
+            self.at = self.next;
+            self.next = self.at + 64;
+            self.open = open_bits(line, width, self.at as i64) & ones(self.end - self.at);
+        }
+        let z = self.open.trailing_zeros() as usize;
+        let len = (!(self.open >> z)).trailing_zeros() as usize;
+        let u = self.at + z;
+        if z + len < 64 {
+            self.open &= !ones(z + len);
+            Some((u, u + len))
+        } else {
+            self.open = 0;
+            self.next = open_run_end(line, width, self.at + 64, self.end);
+            Some((u, self.next))
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -389,6 +441,48 @@ mod tests {
                     "start {start}"
                 );
             }
+        }
+    }
+
+    both_widths!(
+        open_runs_are_those_of_the_pixel_by_pixel_walk,
+        open_runs_case
+    );
+    fn open_runs_case<W: BitWord + Default + core::fmt::Debug>() {
+        let width = 150;
+        let mut rng = crate::xorshift(0x0be7);
+        for round in 0..200 {
+            let dense = round % 4;
+            let opq: heapless::Vec<usize, 150> = (0..width)
+                .filter(|_| rng() % 8 < dense as u64 * 2)
+                .collect();
+            let (a, b) = ((rng() % 160) as usize, (rng() % 160) as usize);
+            let (start, end) = (a.min(b), a.max(b).min(width));
+            // Each run marks some of its own pixels opaque, as compositing does; the
+            // walk must find the runs of the bitmap as it was before them.
+            let marks = |u: usize| (u * 7 + round).is_multiple_of(3);
+            let mut l = line::<W>(width, &opq);
+            let mut got: heapless::Vec<(usize, usize), 150> = heapless::Vec::new();
+            let mut runs = OpenRuns::new(start, end);
+            while let Some((u, e)) = runs.next(&l, width) {
+                got.push((u, e)).unwrap();
+                (u..e).filter(|&x| marks(x)).for_each(|x| mark(&mut l, x));
+            }
+            let mut want: heapless::Vec<(usize, usize), 150> = heapless::Vec::new();
+            let mut u = start;
+            while u < end {
+                if opq.contains(&u) {
+                    u += 1;
+                    continue;
+                }
+                let mut e = u;
+                while e < end && !opq.contains(&e) {
+                    e += 1;
+                }
+                want.push((u, e)).unwrap();
+                u = e;
+            }
+            assert_eq!(got, want, "round {round}: {start}..{end}");
         }
     }
 

@@ -422,9 +422,8 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
         let taps = taps.get(..under.len()).unwrap_or_default();
         // Runs of open pixels: a pixel becomes opaque only as it is composited, so the
         // runs found before a run is composited stay open until then.
-        let mut u = opaque::next_open(opaque_line, width, lo, hi);
-        while u < hi {
-            let e = opaque::open_run_end(opaque_line, width, u, hi);
+        let mut runs = opaque::OpenRuns::new(lo, hi);
+        while let Some((u, e)) = runs.next(opaque_line, width) {
             for x in u..e {
                 // Colours are premultiplied, so a pixel whose taps have no opacity has
                 // no colour either: its opacity is summed first.
@@ -471,7 +470,6 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
                     }
                 }
             }
-            u = opaque::next_open(opaque_line, width, e, hi);
         }
     }
     row.clear();
