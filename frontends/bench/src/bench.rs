@@ -41,6 +41,12 @@ pub struct Options {
     pub isa: Isa,
     /// Also time the baseline build on one thread (when `isa` is above it).
     pub baseline: bool,
+    /// Also render with this many intermediate pixels per voxel ([`Supersampled`]), at
+    /// the image sizes at least twice the volume's largest side.
+    pub supersample: Option<usize>,
+    /// Compare the supersampled runs' images and the plain ones at the same sizes
+    /// against the reference even where `psnr` is off (the scaling series).
+    pub supersample_psnr: bool,
 }
 
 /// Median of a set of timings, ms.
@@ -149,6 +155,19 @@ pub struct SizeResult {
     pub vp: Option<Stats>,
     pub psnr_sw: Option<f64>,
     pub psnr_vp: Option<f64>,
+    /// The same views composited at a finer intermediate resolution, when measured.
+    pub supersampled: Option<Supersampled>,
+}
+
+/// shearwarp on one thread compositing `factor`² intermediate pixels per voxel of a
+/// slice (`Renderer::set_supersample`), which the plain frame's intermediate image,
+/// at the volume's resolution, only upsamples in the warp.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Supersampled {
+    pub factor: usize,
+    /// Median over the views of one pass (its frames are several times the plain ones').
+    pub sw: Stats,
+    pub psnr: Option<f64>,
 }
 
 /// Results of one scene.
@@ -414,8 +433,36 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             vp: vp.as_ref().map(|_| Stats::of(&tv)),
             psnr_sw: None,
             psnr_vp: None,
+            supersampled: None,
         };
-        if opts.psnr || opts.images_dir.is_some() {
+        let max_side = vol.raw.dims.into_iter().max().unwrap_or(0);
+        let mut rs = match opts.supersample {
+            Some(f) if f > 1 && size >= 2 * max_side => {
+                let mut r = renderer(1, opts.isa);
+                r.set_supersample(f)?;
+                Some((f, r))
+            }
+            _ => None,
+        };
+        if let Some((factor, r)) = rs.as_mut() {
+            let mut img = Vec::new();
+            let mut t = vec![0.0; n];
+            for (slot, f) in std::iter::once((usize::MAX, 0)).chain((0..n).map(|f| (f, f))) {
+                let cam = camera(frame_view(f, n), size);
+                let start = Instant::now();
+                r.render_into(&mut src, &cam, &look, &mut img)?;
+                if slot < n {
+                    t[slot] = start.elapsed().as_secs_f64() * 1e3;
+                }
+            }
+            sr.supersampled = Some(Supersampled {
+                factor: *factor,
+                sw: Stats::of(&t),
+                psnr: None,
+            });
+        }
+        let psnr = opts.psnr || (rs.is_some() && opts.supersample_psnr);
+        if psnr || opts.images_dir.is_some() {
             let cam = camera(scene.psnr_view, size);
             let sw_img = rgb_of(&r1.render(&mut src, &cam, &look)?);
             let vp_rgb = match vp.as_mut() {
@@ -431,14 +478,27 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
                 }
                 None => None,
             };
-            let ref_img = if opts.psnr {
+            let ref_img = if psnr {
                 Some(reference_image(scene, &vol, size, opts)?)
             } else {
                 None
             };
+            let ss_img = match rs.as_mut() {
+                Some((_, r)) => Some(rgb_of(&r.render(&mut src, &cam, &look)?)),
+                None => None,
+            };
             if let Some(r) = &ref_img {
                 sr.psnr_sw = Some(metrics::psnr_rgb8(&sw_img, r));
                 sr.psnr_vp = vp_rgb.as_ref().map(|v| metrics::psnr_rgb8(v, r));
+                if let (Some(ss), Some(img)) = (sr.supersampled.as_mut(), &ss_img) {
+                    ss.psnr = Some(metrics::psnr_rgb8(img, r));
+                    eprintln!(
+                        "  {size}x{size} PSNR at {:?} supersampled {}x: {:.3} dB",
+                        scene.psnr_view,
+                        ss.factor,
+                        ss.psnr.unwrap_or(0.0)
+                    );
+                }
                 // The table rounds to 0.1 dB; changes to quality are read here.
                 eprintln!(
                     "  {size}x{size} PSNR at {:?}: shearwarp {:.3} dB{}",
@@ -462,6 +522,16 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
                     size,
                     &strip,
                 )?;
+                if let Some(ss) = &ss_img {
+                    // Supersampled | plain | reference.
+                    let strip: Vec<&[[u8; 3]]> =
+                        vec![ss, &sw_img, ref_img.as_deref().unwrap_or(&blank)];
+                    save_strip(
+                        &dir.join(format!("{}-{size}-supersampled.png", scene.name)),
+                        size,
+                        &strip,
+                    )?;
+                }
             }
         }
         eprintln!(

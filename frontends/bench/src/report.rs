@@ -124,6 +124,66 @@ fn phase_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
     out
 }
 
+/// Column headers of the supersampling table.
+fn supersample_headers() -> Vec<String> {
+    [
+        "scene",
+        "image",
+        "factor",
+        "sw ms/frame",
+        "supersampled ms/frame",
+        "cost ×",
+        "PSNR sw dB",
+        "PSNR supersampled dB",
+        "gain dB",
+        "PSNR VP dB",
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+/// One row per scene and size that ran supersampled.
+fn supersample_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    for r in results {
+        for s in &r.sizes {
+            let Some(ss) = s.supersampled else { continue };
+            let [nx, ny, nz] = r.dims;
+            out.push(vec![
+                format!("{} ({nx}×{ny}×{nz})", r.name),
+                format!("{0}×{0}", s.size),
+                format!("{}×{}", ss.factor, ss.factor),
+                format!("{:.2}", s.sw.median),
+                format!("{:.2}", ss.sw.median),
+                opt(ratio(ss.sw.median, Some(s.sw.median)), 1),
+                opt(s.psnr_sw, 2),
+                opt(ss.psnr, 2),
+                opt(ss.psnr.zip(s.psnr_sw).map(|(a, b)| a - b), 2),
+                opt(s.psnr_vp, 2),
+            ]);
+        }
+    }
+    out
+}
+
+/// Plain-text supersampling table (empty when nothing ran supersampled).
+pub fn supersample_text_table(results: &[SceneResult]) -> String {
+    let rows = supersample_rows(results);
+    if rows.is_empty() {
+        return String::new();
+    }
+    text(&supersample_headers(), &rows)
+}
+
+/// Markdown supersampling table (empty when nothing ran supersampled).
+pub fn supersample_markdown_table(results: &[SceneResult]) -> String {
+    let rows = supersample_rows(results);
+    if rows.is_empty() {
+        return String::new();
+    }
+    markdown(&supersample_headers(), &rows)
+}
+
 /// Plain-text table for the terminal.
 pub fn text_table(results: &[SceneResult]) -> String {
     let threads = results.iter().find_map(|r| r.threads);
@@ -223,7 +283,7 @@ pub fn splice(existing: &str, block: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::{Phases, SizeResult, Stats};
+    use crate::bench::{Phases, SizeResult, Stats, Supersampled};
 
     fn sample() -> Vec<SceneResult> {
         vec![SceneResult {
@@ -259,6 +319,11 @@ mod tests {
                 vp: Some(Stats { median: 4.0 }),
                 psnr_sw: Some(40.0),
                 psnr_vp: None,
+                supersampled: Some(Supersampled {
+                    factor: 2,
+                    sw: Stats { median: 4.5 },
+                    psnr: Some(40.25),
+                }),
             }],
         }]
     }
@@ -283,6 +348,18 @@ mod tests {
         let mut one = sample();
         one[0].sizes[0].threads_phases = None;
         assert_eq!(phase_text_table(&one), "");
+    }
+
+    #[test]
+    fn the_supersampling_table_shows_cost_and_gain() {
+        let m = supersample_markdown_table(&sample());
+        assert!(
+            m.contains("| s (2×3×4) | 256×256 | 2×2 | 1.00 | 4.50 | 4.5 | 40.00 | 40.25 | 0.25 | – |"),
+            "{m}"
+        );
+        let mut plain = sample();
+        plain[0].sizes[0].supersampled = None;
+        assert_eq!(supersample_text_table(&plain), "");
     }
 
     #[test]
