@@ -1457,8 +1457,19 @@ fn composite_slice_supersampled(
             let ub = (hi.div_euclid(one) + 1).clamp(0, width as i64) as usize;
             let mut runs = opaque::OpenRuns::new(ua, ub);
             while let Some((u, e)) = runs.next(opaque, width) {
+                // The sample position u·ONE/s (floored), stepped from pixel to pixel
+                // as quotient and remainder: one division a run instead of one a
+                // pixel (a 64-bit division takes tens of cycles).
+                let (step, carry) = (one / ss, one % ss);
+                let (mut q, mut r) = ((u as i64 * one) / ss, (u as i64 * one) % ss);
                 for (u, px) in pixels.iter_mut().enumerate().take(e).skip(u) {
-                    let pu = u as i64 * one / ss - tu;
+                    let pu = q - tu;
+                    q += step;
+                    r += carry;
+                    if r >= ss {
+                        q += 1;
+                        r -= ss;
+                    }
                     let il = pu.div_euclid(one);
                     let fru = pu.rem_euclid(one) as u32;
                     if il < -1 || il >= ni as i64 {

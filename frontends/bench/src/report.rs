@@ -354,7 +354,9 @@ mod tests {
     fn the_supersampling_table_shows_cost_and_gain() {
         let m = supersample_markdown_table(&sample());
         assert!(
-            m.contains("| s (2×3×4) | 256×256 | 2×2 | 1.00 | 4.50 | 4.5 | 40.00 | 40.25 | 0.25 | – |"),
+            m.contains(
+                "| s (2×3×4) | 256×256 | 2×2 | 1.00 | 4.50 | 4.5 | 40.00 | 40.25 | 0.25 | – |"
+            ),
             "{m}"
         );
         let mut plain = sample();
