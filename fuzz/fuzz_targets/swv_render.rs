@@ -1,7 +1,8 @@
 //! `.swv` stream: open the fuzz input with `StreamSource` over a `SliceReader` and render
 //! small frames along all three principal axes (composite with the file's lighting, a
-//! depth-cued frame, MIP, and shadows when the file has a light), and one perspective
-//! frame with a field of view taken from the input.
+//! depth-cued frame, MIP, and shadows when the file has a light), one frame supersampled
+//! 2×2 within slices, and one perspective frame with a field of view taken from the
+//! input.
 //!
 //! Every header, table and slice of a `.swv` carries a CRC-32, which random mutation
 //! almost never satisfies. So each input is parsed twice: as it is (exercising the
@@ -148,6 +149,37 @@ fn run(data: &[u8]) {
             // A corrupt slice fails the frames along its axis only: keep going.
             let ok = render(&mut src, &cam, &settings, &mut ws, &mut sink).is_ok();
             if ok && (depth_cue.is_none() || DEPTH_CUE_FIXED) {
+                for p in b.image.iter() {
+                    assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
+                }
+            }
+        }
+        // Supersampled 2×2 within slices (four intermediate pixels per voxel, in the
+        // perspective buffers, which hold four times the plain ones): a frame that
+        // renders must keep colour within alpha.
+        let grid = shearwarp_core::source::SliceSource::grid(&src);
+        let settings = look.settings();
+        let cam = Camera {
+            rotate_x: 25.0,
+            rotate_y: 35.0 + (data.len() % 5) as f64 * 60.0,
+            width: IMG,
+            height: IMG,
+        };
+        if let Ok(frame) = Frame::supersampled(&grid, &cam, &settings, &mut b.shade, None, 2) {
+            let mut ws = Workspace {
+                pixels: &mut b.persp_pixels,
+                links: &mut b.persp_links,
+                rows: &mut b.rows,
+                out_row: &mut b.out_row,
+                shade: &mut b.shade,
+                shadow: None,
+            };
+            b.image.fill([0; 4]);
+            let mut sink = FrameBuffer {
+                width: IMG,
+                pixels: &mut b.image,
+            };
+            if render_frame(&mut src, &frame, &mut ws, &mut sink).is_ok() {
                 for p in b.image.iter() {
                     assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
                 }
