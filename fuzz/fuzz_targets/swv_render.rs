@@ -149,14 +149,13 @@ fn run(data: &[u8]) {
             // A corrupt slice fails the frames along its axis only: keep going.
             let ok = render(&mut src, &cam, &settings, &mut ws, &mut sink).is_ok();
             if ok && (depth_cue.is_none() || DEPTH_CUE_FIXED) {
-                for p in b.image.iter() {
-                    assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
-                }
+                assert_within_alpha(&b.image);
             }
         }
-        // Supersampled 2×2 within slices (four intermediate pixels per voxel, in the
-        // perspective buffers, which hold four times the plain ones): a frame that
-        // renders must keep colour within alpha.
+        // A supersampled frame (2×2 intermediate pixels per voxel) and a perspective one
+        // use the larger buffers, which hold four times the plain intermediate image. A
+        // parameter error (too strong a perspective) or a buffer error is fine; a frame
+        // that renders must keep colour within alpha.
         let grid = shearwarp_core::source::SliceSource::grid(&src);
         let settings = look.settings();
         let cam = Camera {
@@ -166,58 +165,47 @@ fn run(data: &[u8]) {
             height: IMG,
         };
         if let Ok(frame) = Frame::supersampled(&grid, &cam, &settings, &mut b.shade, None, 2) {
-            let mut ws = Workspace {
-                pixels: &mut b.persp_pixels,
-                links: &mut b.persp_links,
-                rows: &mut b.rows,
-                out_row: &mut b.out_row,
-                shade: &mut b.shade,
-                shadow: None,
-            };
-            b.image.fill([0; 4]);
-            let mut sink = FrameBuffer {
-                width: IMG,
-                pixels: &mut b.image,
-            };
-            if render_frame(&mut src, &frame, &mut ws, &mut sink).is_ok() {
-                for p in b.image.iter() {
-                    assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
-                }
-            }
+            render_large(&mut src, b, &frame);
         }
-        // Perspective: a parameter error (too strong a perspective) or a buffer error
-        // is fine; a frame that renders must keep colour within alpha.
         let fov = 1.0 + (data.len() % 150) as f64;
-        let settings = look.settings();
         let cam = Camera {
             rotate_x: 20.0 + (data.len() % 7) as f64 * 40.0,
             rotate_y: -35.0,
             width: IMG,
             height: IMG,
         };
-        let grid = shearwarp_core::source::SliceSource::grid(&src);
-        let Ok(frame) = Frame::perspective(&grid, &cam, fov, &settings, &mut b.shade) else {
-            return;
-        };
-        let mut ws = Workspace {
-            pixels: &mut b.persp_pixels,
-            links: &mut b.persp_links,
-            rows: &mut b.persp_rows,
-            out_row: &mut b.out_row,
-            shade: &mut b.shade,
-            shadow: None,
-        };
-        b.image.fill([0; 4]);
-        let mut sink = FrameBuffer {
-            width: IMG,
-            pixels: &mut b.image,
-        };
-        if render_frame(&mut src, &frame, &mut ws, &mut sink).is_ok() {
-            for p in b.image.iter() {
-                assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
-            }
+        if let Ok(frame) = Frame::perspective(&grid, &cam, fov, &settings, &mut b.shade) {
+            render_large(&mut src, b, &frame);
         }
     });
+}
+
+/// Renders `frame` in the larger buffers; a frame that renders must keep colour within
+/// alpha.
+fn render_large(src: &mut Src<'_>, b: &mut Bufs, frame: &Frame) {
+    let mut ws = Workspace {
+        pixels: &mut b.persp_pixels,
+        links: &mut b.persp_links,
+        rows: &mut b.persp_rows,
+        out_row: &mut b.out_row,
+        shade: &mut b.shade,
+        shadow: None,
+    };
+    b.image.fill([0; 4]);
+    let mut sink = FrameBuffer {
+        width: IMG,
+        pixels: &mut b.image,
+    };
+    if render_frame(src, frame, &mut ws, &mut sink).is_ok() {
+        assert_within_alpha(&b.image);
+    }
+}
+
+/// Premultiplied colour never exceeds its alpha.
+fn assert_within_alpha(image: &[[u8; 4]]) {
+    for p in image {
+        assert!(p[0] <= p[3] && p[1] <= p[3] && p[2] <= p[3], "{p:?}");
+    }
 }
 
 fuzz_target!(|data: &[u8]| {
