@@ -1405,6 +1405,10 @@ fn composite_slice_supersampled(
     let [ni, nj, _] = view.dims;
     let ss = view.supersample as i64;
     let one = ONE as i64;
+    // Pixel u samples at u·ONE/s (floored): stepped from pixel to pixel as a quotient
+    // and a remainder, one division a run instead of one a pixel (a 64-bit division
+    // takes tens of cycles).
+    let (step, carry) = (one / ss, one % ss);
     let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
     // Slice translation T in Q15.
     let tu = ou.n as i64 * one + ou.f as i64;
@@ -1457,10 +1461,6 @@ fn composite_slice_supersampled(
             let ub = (hi.div_euclid(one) + 1).clamp(0, width as i64) as usize;
             let mut runs = opaque::OpenRuns::new(ua, ub);
             while let Some((u, e)) = runs.next(opaque, width) {
-                // The sample position u·ONE/s (floored), stepped from pixel to pixel
-                // as quotient and remainder: one division a run instead of one a
-                // pixel (a 64-bit division takes tens of cycles).
-                let (step, carry) = (one / ss, one % ss);
                 let (mut q, mut r) = ((u as i64 * one) / ss, (u as i64 * one) % ss);
                 for (u, px) in pixels.iter_mut().enumerate().take(e).skip(u) {
                     let pu = q - tu;

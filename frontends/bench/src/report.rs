@@ -168,20 +168,24 @@ fn supersample_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
 
 /// Plain-text supersampling table (empty when nothing ran supersampled).
 pub fn supersample_text_table(results: &[SceneResult]) -> String {
-    let rows = supersample_rows(results);
-    if rows.is_empty() {
-        return String::new();
-    }
-    text(&supersample_headers(), &rows)
+    unless_empty(&supersample_headers(), &supersample_rows(results), text)
 }
 
 /// Markdown supersampling table (empty when nothing ran supersampled).
 pub fn supersample_markdown_table(results: &[SceneResult]) -> String {
-    let rows = supersample_rows(results);
+    unless_empty(&supersample_headers(), &supersample_rows(results), markdown)
+}
+
+/// The table in `format`, or nothing when it has no rows.
+fn unless_empty(
+    h: &[String],
+    rows: &[Vec<String>],
+    format: fn(&[String], &[Vec<String>]) -> String,
+) -> String {
     if rows.is_empty() {
         return String::new();
     }
-    markdown(&supersample_headers(), &rows)
+    format(h, rows)
 }
 
 /// Plain-text table for the terminal.
@@ -202,14 +206,8 @@ pub fn phase_markdown_table(results: &[SceneResult]) -> String {
 
 /// The phase table in `format` (empty when nothing ran threaded).
 fn phase_table(results: &[SceneResult], format: fn(&[String], &[Vec<String>]) -> String) -> String {
-    let rows = phase_rows(results);
-    if rows.is_empty() {
-        return String::new();
-    }
-    format(
-        &phase_headers(results.iter().find_map(|r| r.threads)),
-        &rows,
-    )
+    let threads = results.iter().find_map(|r| r.threads);
+    unless_empty(&phase_headers(threads), &phase_rows(results), format)
 }
 
 /// Columns padded to their widest cell; the first two left-aligned.
