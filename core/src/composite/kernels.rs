@@ -294,11 +294,11 @@ pub(crate) use over_run_simd;
 
 /// Reads one byte per 64-byte line of `voxels`, a row the compositor reaches two rows
 /// later: the compositor's default way to warm the cache (see
-/// [`super::composite_slice_in`]'s `warm`). Lazy shading reads a few scattered voxels per row, which the hardware does
-/// not prefetch; walking the row ahead streams the slice into the cache instead (about
-/// 10 % of a frame on the MR head, which otherwise waits on those reads). The loads make
-/// the core wait for memory when the row is not cached, which a prefetch instruction
-/// does not (every x86-64 build uses one, see
+/// [`super::composite_slice_in`]'s `warm`). Lazy shading reads a few scattered voxels
+/// per row, which the hardware does not prefetch; walking the row ahead streams the
+/// slice into the cache instead (about 10 % of a frame on the MR head, which otherwise
+/// waits on those reads). The loads make the core wait for memory when the row is not
+/// cached, which a prefetch instruction does not (every x86-64 build uses one, see
 /// [`crate::render::composite_band_until_x86_64`]). Bare-metal targets have no data
 /// cache to fill, so there it does nothing.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
