@@ -267,6 +267,49 @@ impl<'b> Row<'b> {
     }
 }
 
+impl Row<'_> {
+    /// `shading` shades the voxels of row `j` (`runs`, `voxels`) that lie in `needed`,
+    /// sorted disjoint voxel ranges; the others stay zero.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn fill_in(
+        &mut self,
+        runs: &[u8],
+        voxels: &[Voxel],
+        t: &SliceTables<'_>,
+        j: i64,
+        needed: &[(usize, usize)],
+        k: &impl Kernels,
+        shading: &impl Shading,
+    ) {
+        self.clear();
+        let mut need = needed.iter().peekable();
+        let mut v = 0usize;
+        for (a, b) in Spans::new(runs) {
+            let base = v;
+            v += b - a;
+            // The ranges that overlap the span; one that runs on past it is kept for the
+            // next span.
+            while let Some(&&(c, d)) = need.peek() {
+                if d <= a {
+                    need.next();
+                    continue;
+                }
+                if c >= b {
+                    break;
+                }
+                let (x, y) = (c.max(a), d.min(b));
+                if let Some(src) = voxels.get(base + (x - a)..) {
+                    self.shade(src, (x, y), t, j, k, shading);
+                }
+                if d > b {
+                    break;
+                }
+                need.next();
+            }
+        }
+    }
+}
+
 /// Which voxels of a row some open pixel reads: voxel `i` feeds pixels `i + shift` and
 /// `i + shift + 1` of the (up to two) scanlines that use the row.
 pub(crate) struct Needed<'a> {
@@ -369,7 +412,7 @@ pub(super) enum Reach {
 
 /// The voxels `[first, last)` from a scanline's first to its last visible voxel (`ni`
 /// wide), from the runs at its two ends; `None` if it has none.
-fn visible_extent(runs: &[u8], ni: usize) -> Option<(usize, usize)> {
+pub(super) fn visible_extent(runs: &[u8], ni: usize) -> Option<(usize, usize)> {
     let mut first = 0;
     let mut seen = false;
     for pair in runs.chunks_exact(2) {
