@@ -446,8 +446,24 @@ fn composite_rows(
             Reach::Everything
         };
         reach[(jt + 3).rem_euclid(4) as usize] = r;
-        if r != Reach::Nothing {
-            kern.warm(ahead.1);
+        // A row read whole is warmed whole. Of a row read in part, open pixels mostly
+        // read the voxels at its two ends (the rim of what is already opaque), so only
+        // its first and last 32 voxels (two cache lines each) are warmed: warming it
+        // whole streamed the rest of it into the cache for nothing, and cost more time
+        // than the instructions it took (alternating runs, one thread, 256²: brainsmall
+        // 1.11 → 1.04 ms, the head 4.86 → 4.45, the hires brain 13.97 → 13.23,
+        // spheres256 17.01 → 16.14; warming none of it, the hires brain took 15.0 ms).
+        // Bare-metal targets have no data cache to warm.
+        match r {
+            _ if cfg!(target_os = "none") => {}
+            Reach::Nothing => {}
+            Reach::Everything => kern.warm(ahead.1),
+            Reach::Some => {
+                let v = ahead.1;
+                let n = v.len().min(32);
+                kern.warm(v.get(..n).unwrap_or_default());
+                kern.warm(v.get(v.len() - n..).unwrap_or_default());
+            }
         }
         match reach[(jt + 1).rem_euclid(4) as usize] {
             Reach::Nothing => bot.clear(),
