@@ -551,9 +551,7 @@ fn composite_slice_supersampled(
     // Rows held in `top` / `bot` (voxel row indices), i64::MIN when none.
     let mut held = i64::MIN;
     for v in img.row0..img.row0 + img.rows {
-        let pv = v as i64 * one / ss - tv;
-        let jt = pv.div_euclid(one);
-        let frv = pv.rem_euclid(one) as u32;
+        let (jt, frv) = sample_at(v, ss, tv);
         if jt < j_first as i64 - 1 || jt > j_last as i64 {
             continue;
         }
@@ -585,11 +583,10 @@ fn composite_slice_supersampled(
         };
         for (a, b) in spans {
             // The merged span [a, b) already includes the voxel to the right of each run
-            // (b = last + 2): pixels whose left voxel lies in [a − 1, b − 1).
-            let lo = ((a as i64 - 1) * one + tu) * ss;
-            let hi = ((b as i64 - 1) * one + tu) * ss;
-            let ua = (lo.div_euclid(one) + 1).clamp(0, width as i64) as usize;
-            let ub = (hi.div_euclid(one) + 1).clamp(0, width as i64) as usize;
+            // (b = last + 2).
+            let (ua, ub) = span_pixels(a, b, tu, ss);
+            let (ua, ub) = (ua.clamp(0, width as i64), ub.clamp(0, width as i64));
+            let (ua, ub) = (ua as usize, ub as usize);
             let mut runs = opaque::OpenRuns::new(ua, ub);
             while let Some((u, e)) = runs.next(opaque, width) {
                 let (mut q, mut r) = ((u as i64 * one) / ss, (u as i64 * one) % ss);
@@ -626,11 +623,31 @@ fn composite_slice_supersampled(
 fn group_end(vs: core::ops::Range<usize>, jt: i64, ss: i64, tv: i64) -> usize {
     // At least one, as the caller's is: said here, the division below cannot fail.
     let ss = ss.max(1);
-    let one = ONE as i64;
     let end = vs.end;
     vs.into_iter()
-        .find(|&w| (w as i64 * one / ss - tv).div_euclid(one) != jt)
+        .find(|&w| sample_at(w, ss, tv).0 != jt)
         .unwrap_or(end)
+}
+
+/// Where scanline or pixel `x` of a slice supersampled `ss` times (`ss >= 1`) at Q15
+/// offset `t` samples it: at `⌊x·ONE/ss⌋ − t`, as the voxel row or column before the
+/// sample and the Q15 fraction past it.
+#[inline(always)]
+fn sample_at(x: usize, ss: i64, t: i64) -> (i64, u32) {
+    let one = ONE as i64;
+    let p = x as i64 * one / ss - t;
+    (p.div_euclid(one), p.rem_euclid(one) as u32)
+}
+
+/// The pixels `[ua, ub)` of a scanline of a slice supersampled `ss` times at Q15 offset
+/// `tu` whose left voxel ([`sample_at`]) lies in `a − 1 .. b − 1`, before clamping to
+/// the scanline. The pixel whose sample falls exactly on voxel `a − 1` is left out: it
+/// gives voxel `a` a weight of zero.
+#[inline(always)]
+fn span_pixels(a: usize, b: usize, tu: i64, ss: i64) -> (i64, i64) {
+    let one = ONE as i64;
+    let edge = |v: usize| (((v as i64 - 1) * one + tu) * ss).div_euclid(one) + 1;
+    (edge(a), edge(b))
 }
 
 /// Shades row `j` (its runs and voxels) of a supersampled slice for the scanlines `vs`
@@ -654,6 +671,8 @@ fn fill_supersampled(
     let mut needed = NeedRanges::new();
     let lazy =
         tables.mode == Mode::Composite && supersampled_needs(img, vs, runs, place, &mut needed);
+    // A row shaded whole is one range over every voxel: with `Row::fill` for it as
+    // well, the Cortex-M3 firmware's code was 2.8 KB larger.
     let all = [(0, usize::MAX)];
     let needed = if lazy { &needed[..] } else { &all[..] };
     row.fill_in(runs, voxels, tables, j, needed, kern, shading);
@@ -676,28 +695,25 @@ fn supersampled_needs(
 ) -> bool {
     // At least one, as the caller's is: said here, the divisions below cannot fail.
     let ss = ss.max(1);
-    let one = ONE as i64;
-    let Some(extent) = row::visible_extent(runs, ni) else {
+    let Some((first, last)) = row::visible_extent(runs, ni) else {
         return false;
     };
     // The pixels whose left voxel lies in first − 1 ..= last (as the compositor finds
-    // a span's pixels), one more at each end.
-    let width = img.width as i64;
-    let lo = ((extent.0 as i64 - 1) * one + tu) * ss;
-    let hi = (extent.1 as i64 * one + tu) * ss;
-    let ua = lo.div_euclid(one).clamp(0, width) as usize;
-    let ub = (hi.div_euclid(one) + 2).clamp(0, width) as usize;
+    // a span's pixels, for the span first..last + 1), one more at each end.
+    let width = img.width;
+    let (ua, ub) = span_pixels(first, last + 1, tu, ss);
+    let ua = (ua - 1).clamp(0, width as i64) as usize;
+    let ub = (ub + 1).clamp(0, width as i64) as usize;
     // The voxel left of pixel u's sample.
-    let left = |u: usize| ((u as i64 * one) / ss - tu).div_euclid(one);
+    let left = |u: usize| sample_at(u, ss, tu).0;
     let mut p = ua & !63;
     while p < ub {
-        let k = p / 64;
-        let mut closed = u64::MAX;
+        // Open in any of the scanlines.
+        let mut open = 0;
         for v in vs.clone() {
-            closed &= opaque::word64(img.opaque_line(v - img.row0), k);
+            open |= opaque::open_bits(img.opaque_line(v - img.row0), width, p as i64);
         }
-        let valid = opaque::ones(ub - p) & !opaque::ones(ua.saturating_sub(p));
-        let mut open = !closed & valid;
+        open &= opaque::ones(ub - p) & !opaque::ones(ua.saturating_sub(p));
         while open != 0 {
             let z = open.trailing_zeros() as usize;
             let len = (!(open >> z)).trailing_zeros() as usize;

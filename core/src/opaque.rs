@@ -145,13 +145,6 @@ impl BitWord for u64 {
     word_bits!(u64);
 }
 
-/// The opaque bits of pixels `64·k..64·k + 64` of a scanline stored in `line`, bit `t`
-/// for pixel `64·k + t`; words past the end read as zero.
-#[inline(always)]
-pub(crate) fn word64(line: &[Word], k: usize) -> u64 {
-    Word::words(line, k.saturating_mul(64 / BITS)).0
-}
-
 /// The opaque bits of pixels `start..start + 64` (`start >= 0`) of a scanline stored in
 /// `line`, bit `t` for pixel `start + t`, and the bit of pixel `start + 64`; words past
 /// the end read as zero.
