@@ -115,6 +115,14 @@ impl<'b> Row<'b> {
     /// instructions and the hires brain's 0.6 % (callgrind, x86-64-v3).
     #[inline(never)]
     pub(crate) fn clear(&mut self) {
+        // Runs are cleared in blocks of eight entries (64 bytes, four 16-byte stores),
+        // past a run's end where the buffer allows: an entry is either zero or in a run
+        // being cleared, so zeroing more is harmless. A run is mostly a few voxels (the
+        // MR head: 5.7), one block; as `fill` it was a call to `memset`, whose branches
+        // on the length cost more than the stores (alternating runs, one thread, 256²:
+        // brainsmall 1.05 → 0.99 ms, the head 4.58 → 4.35, the hires brain 13.49 →
+        // 12.91; blocks of 4 entries: 1.01, 4.39, 13.18; of 16: 1.02, 4.55, 13.08).
+        const BLOCK: usize = 8;
         let (a, b) = self.dirty;
         let b = b.min(self.buf.len());
         if a < b {
@@ -122,8 +130,22 @@ impl<'b> Row<'b> {
             match self.runs.get(..self.written).filter(|_| Row::RUNS != 0) {
                 Some(runs) => {
                     for &(x, y) in runs {
-                        if let Some(r) = self.buf.get_mut(x..y) {
-                            r.fill([0; 4]);
+                        let mut i = x;
+                        while i < y {
+                            match self
+                                .buf
+                                .get_mut(i..)
+                                .and_then(|s| s.first_chunk_mut::<BLOCK>())
+                            {
+                                Some(c) => *c = [[0; 4]; BLOCK],
+                                None => {
+                                    if let Some(r) = self.buf.get_mut(i..y) {
+                                        r.fill([0; 4]);
+                                    }
+                                    break;
+                                }
+                            }
+                            i += BLOCK;
                         }
                     }
                 }
@@ -679,6 +701,43 @@ mod tests {
             }
             // The extent covers every non-zero entry.
             assert!(lazy.zero_outside_extent());
+        }
+    }
+
+    /// Clearing zeroes every written run, one that ends too near the buffer's end for a
+    /// whole block of zeroes included, and nothing of the other row of the pair; with
+    /// more runs than a row keeps, the whole extent is cleared. Fails if the blocks are
+    /// cut short at a run's end or run on past the row's buffer.
+    #[test]
+    fn clearing_zeroes_the_written_runs_and_stays_in_its_row() {
+        let ni = 37;
+        let mark = [7u16, 1, 2, 3];
+        for runs in [
+            &[(1, 2), (4, 13), (ni - 3, ni + 2)][..],
+            &[
+                (0, 3),
+                (5, 6),
+                (8, 9),
+                (11, 12),
+                (14, 15),
+                (17, 18),
+                (20, 21),
+                (23, 24),
+                (26, 39),
+            ],
+        ] {
+            let mut rows = [[0u16; 4]; row_buffer_len(37)];
+            let (mut r0, r1) = Row::pair(&mut rows, ni, true);
+            r1.buf.fill(mark);
+            for &(x, y) in runs {
+                r0.buf[x..y].fill(mark);
+                r0.wrote(x, y);
+            }
+            r0.dirty = (runs[0].0, runs[runs.len() - 1].1);
+            r0.clear();
+            assert!(r0.buf.iter().all(|e| *e == [0; 4]), "{runs:?}");
+            assert_eq!(r0.extent(), None);
+            assert!(r1.buf.iter().all(|e| *e == mark), "{runs:?}");
         }
     }
 }
