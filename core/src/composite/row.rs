@@ -710,10 +710,10 @@ mod tests {
     /// cut short at a run's end or run on past the row's buffer.
     #[test]
     fn clearing_zeroes_the_written_runs_and_stays_in_its_row() {
-        let ni = 37;
+        const NI: usize = 37;
         let mark = [7u16, 1, 2, 3];
         for runs in [
-            &[(1, 2), (4, 13), (ni - 3, ni + 2)][..],
+            &[(1, 2), (4, 13), (NI - 3, NI + 2)][..],
             &[
                 (0, 3),
                 (5, 6),
@@ -723,11 +723,11 @@ mod tests {
                 (17, 18),
                 (20, 21),
                 (23, 24),
-                (26, 39),
+                (26, NI + 2),
             ],
         ] {
-            let mut rows = [[0u16; 4]; row_buffer_len(37)];
-            let (mut r0, r1) = Row::pair(&mut rows, ni, true);
+            let mut rows = [[0u16; 4]; row_buffer_len(NI)];
+            let (mut r0, r1) = Row::pair(&mut rows, NI, true);
             r1.buf.fill(mark);
             for &(x, y) in runs {
                 r0.buf[x..y].fill(mark);
