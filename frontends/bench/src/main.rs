@@ -96,7 +96,16 @@ struct Cli {
     /// them), at the image sizes at least twice the volume's largest side.
     #[arg(long, default_value_t = 2)]
     supersample: usize,
+    /// Render the training scenes (volumes the benchmark does not time) with shearwarp
+    /// alone, every way the benchmark renders, and exit: the training run of a
+    /// profile-guided build (`frontends/bench/pgo.sh`).
+    #[arg(long)]
+    train: bool,
 }
+
+/// What a profile-guided build of this binary was trained on, set at compile time by
+/// `frontends/bench/pgo.sh`; `None` for a plain `cargo build`.
+const PGO: Option<&str> = option_env!("SHEARWARP_BENCH_PGO");
 
 fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -372,6 +381,20 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         supersample: (cli.supersample > 1).then_some(cli.supersample),
         supersample_psnr: !cli.no_psnr,
     };
+    if cli.train {
+        let opts = Options {
+            no_volpack: true,
+            psnr: false,
+            supersample_psnr: false,
+            images_dir: None,
+            ..opts
+        };
+        for scene in scenes::training_scenes(&data_dir(&cli)) {
+            let r = bench::run_scene(&scene, &opts)?;
+            println!("trained on {} ({} image sizes)", r.name, r.sizes.len());
+        }
+        return Ok(());
+    }
     let mut list = scenes::main_scenes(&data_dir(&cli), &cli.den);
     if let Some(only) = &cli.scenes {
         for name in only {
@@ -476,11 +499,29 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             Some(n) if n != 0 => format!("nice -n {n} "),
             _ => String::new(),
         };
+        let command = match PGO {
+            Some(_) => "frontends/bench/pgo.sh",
+            None => "cargo run --release -p shearwarp-bench --",
+        };
         let _ = writeln!(
             block,
-            "Command (from the repository root):\n\n```sh\n{nice}cargo run --release -p shearwarp-bench -- {}\n```\n",
+            "Command (from the repository root):\n\n```sh\n{nice}{command} {}\n```\n",
             args.join(" ")
         );
+        let _ = match PGO {
+            Some(trained) => writeln!(
+                block,
+                "shearwarp was built with a profile (`frontends/bench/pgo.sh`: an \
+                 instrumented build of this binary rendered {trained}, none of which is \
+                 timed here, and the profile steered the release build's inlining and code \
+                 layout). VolPack is Debian's build, as in the plain build's table.\n"
+            ),
+            None => writeln!(
+                block,
+                "shearwarp was built by `cargo build --release` (the workspace's release \
+                 profile: thin LTO, one codegen unit).\n"
+            ),
+        };
         let _ = writeln!(block, "Machine:\n\n{}", machine());
         let _ = writeln!(
             block,
@@ -556,7 +597,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         let _ = writeln!(block, "\n### Encoded size\n");
         block.push_str(&memory_table(&all));
         let existing = std::fs::read_to_string(md).unwrap_or_default();
-        std::fs::write(md, report::splice(&existing, &block))?;
+        let markers = match PGO {
+            Some(_) => &report::PGO,
+            None => &report::PLAIN,
+        };
+        std::fs::write(md, report::splice(&existing, &block, markers))?;
         eprintln!("updated {}", md.display());
     }
     Ok(())

@@ -3,9 +3,24 @@
 use crate::bench::SceneResult;
 use std::fmt::Write as _;
 
-/// Start and end markers of the generated block in BENCHMARKS.md.
-pub const BEGIN: &str = "<!-- shearwarp-bench:begin (generated; edit outside the markers) -->";
-pub const END: &str = "<!-- shearwarp-bench:end -->";
+/// Start and end markers of a generated block in BENCHMARKS.md.
+pub struct Markers {
+    pub begin: &'static str,
+    pub end: &'static str,
+}
+
+/// The block of the plain `cargo build --release` binary.
+pub const PLAIN: Markers = Markers {
+    begin: "<!-- shearwarp-bench:begin (generated; edit outside the markers) -->",
+    end: "<!-- shearwarp-bench:end -->",
+};
+
+/// The block of the profile-guided binary (`frontends/bench/pgo.sh`): a run of either
+/// build leaves the other's block as it is.
+pub const PGO: Markers = Markers {
+    begin: "<!-- shearwarp-bench-pgo:begin (generated; edit outside the markers) -->",
+    end: "<!-- shearwarp-bench-pgo:end -->",
+};
 
 fn opt(v: Option<f64>, prec: usize) -> String {
     match v {
@@ -258,12 +273,14 @@ fn markdown(h: &[String], rows: &[Vec<String>]) -> String {
     out
 }
 
-/// Replaces the generated block of `existing` (or appends one) with `block`.
-pub fn splice(existing: &str, block: &str) -> String {
-    let generated = format!("{BEGIN}\n{block}{END}\n");
-    match (existing.find(BEGIN), existing.find(END)) {
+/// Replaces the generated block of `existing` marked by `m` (or appends one) with
+/// `block`.
+pub fn splice(existing: &str, block: &str, m: &Markers) -> String {
+    let Markers { begin, end } = m;
+    let generated = format!("{begin}\n{block}{end}\n");
+    match (existing.find(begin), existing.find(end)) {
         (Some(b), Some(e)) if e > b => {
-            let after = &existing[e + END.len()..];
+            let after = &existing[e + end.len()..];
             let after = after.strip_prefix('\n').unwrap_or(after);
             format!("{}{generated}{after}", &existing[..b])
         }
@@ -364,12 +381,25 @@ mod tests {
 
     #[test]
     fn splice_replaces_or_appends() {
-        let a = splice("# T\n\ntext\n", "one\n");
-        assert_eq!(a, format!("# T\n\ntext\n\n{BEGIN}\none\n{END}\n"));
-        let b = splice(&a, "two\n");
-        assert_eq!(b, format!("# T\n\ntext\n\n{BEGIN}\ntwo\n{END}\n"));
-        let c = splice(&format!("{b}tail\n"), "three\n");
-        assert_eq!(c, format!("# T\n\ntext\n\n{BEGIN}\nthree\n{END}\ntail\n"));
-        assert_eq!(splice("", "x\n"), format!("{BEGIN}\nx\n{END}\n"));
+        let Markers { begin, end } = PLAIN;
+        let a = splice("# T\n\ntext\n", "one\n", &PLAIN);
+        assert_eq!(a, format!("# T\n\ntext\n\n{begin}\none\n{end}\n"));
+        let b = splice(&a, "two\n", &PLAIN);
+        assert_eq!(b, format!("# T\n\ntext\n\n{begin}\ntwo\n{end}\n"));
+        let c = splice(&format!("{b}tail\n"), "three\n", &PLAIN);
+        assert_eq!(c, format!("# T\n\ntext\n\n{begin}\nthree\n{end}\ntail\n"));
+        assert_eq!(splice("", "x\n", &PLAIN), format!("{begin}\nx\n{end}\n"));
+    }
+
+    #[test]
+    fn each_build_replaces_only_its_own_block() {
+        let both = splice(&splice("# T\n", "plain\n", &PLAIN), "pgo\n", &PGO);
+        let again = splice(&both, "pgo 2\n", &PGO);
+        assert!(again.contains(&format!("{}\nplain\n{}", PLAIN.begin, PLAIN.end)));
+        assert!(again.contains(&format!("{}\npgo 2\n{}", PGO.begin, PGO.end)));
+        assert!(!again.contains("pgo\n"));
+        let plain = splice(&again, "plain 2\n", &PLAIN);
+        assert!(plain.contains("plain 2\n") && !plain.contains("plain\n"));
+        assert!(plain.contains("pgo 2\n"));
     }
 }

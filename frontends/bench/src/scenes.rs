@@ -286,6 +286,24 @@ pub fn main_scenes(data_dir: &Path, den: &Path) -> Vec<Scene> {
     ]
 }
 
+/// The volumes a profile-guided build (`frontends/bench/pgo.sh`) is trained on: none
+/// of them is timed, so the profile is what any volume makes the renderer do, not what
+/// the timed ones do. A thick-slab proton-density MR series (anisotropic, 20 slices),
+/// and nested spheres of sides the scaling series does not use (one small enough for
+/// the supersampled frames).
+pub fn training_scenes(data_dir: &Path) -> Vec<Scene> {
+    vec![
+        Scene {
+            name: "mr_pd_brain_series".into(),
+            source: Source::Shared(data_dir.join("mr_pd_brain_series.json")),
+            look: Appearance::ramp(30.0, 90.0, 0.9),
+            psnr_view: (25.0, 35.0),
+        },
+        spheres(96),
+        spheres(192),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
