@@ -40,7 +40,7 @@ struct Cli {
     #[arg(long, value_delimiter = ',')]
     scenes: Option<Vec<String>>,
     /// Sides of the nested-spheres scaling series, comma separated.
-    #[arg(long, default_value = "64,128,256,512", value_delimiter = ',')]
+    #[arg(long, default_value = scenes::SCALING_SIDES, value_delimiter = ',')]
     scaling: Vec<usize>,
     /// Skip the scaling series.
     #[arg(long)]

@@ -251,6 +251,9 @@ impl Scene {
     }
 }
 
+/// The sides of the nested-spheres scaling series the benchmark times by default.
+pub const SCALING_SIDES: &str = "64,128,256,512";
+
 /// The nested-spheres scene of side `n`.
 pub fn spheres(n: usize) -> Scene {
     Scene {
@@ -307,6 +310,33 @@ pub fn training_scenes(data_dir: &Path) -> Vec<Scene> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_training_scene_is_timed() {
+        let (data, den) = (Path::new("data"), Path::new("brainsmall.den"));
+        let timed = main_scenes(data, den);
+        let sides: Vec<usize> = SCALING_SIDES
+            .split(',')
+            .map(|s| s.parse().unwrap())
+            .collect();
+        let training = training_scenes(data);
+        assert!(!training.is_empty());
+        for t in &training {
+            assert!(
+                timed.iter().all(|s| s.name != t.name),
+                "{} is timed",
+                t.name
+            );
+            match &t.source {
+                Source::Spheres(n) => assert!(!sides.contains(n), "spheres{n} is timed"),
+                Source::Shared(p) => {
+                    let same = |s: &Scene| matches!(&s.source, Source::Shared(q) if q == p);
+                    assert!(!timed.iter().any(same), "{} is timed", p.display());
+                }
+                Source::Den(_) => panic!("{}: the only .den scene is timed", t.name),
+            }
+        }
+    }
 
     #[test]
     fn material_weights_interpolate_the_colour_ramp() {
