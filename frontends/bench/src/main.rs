@@ -499,29 +499,33 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
             Some(n) if n != 0 => format!("nice -n {n} "),
             _ => String::new(),
         };
-        let command = match PGO {
-            Some(_) => "frontends/bench/pgo.sh",
-            None => "cargo run --release -p shearwarp-bench --",
+        // How this binary was built: the command that reruns it, what to say of the
+        // build, and the block of BENCHMARKS.md it writes.
+        let (command, build, markers) = match PGO {
+            Some(trained) => (
+                "frontends/bench/pgo.sh",
+                format!(
+                    "shearwarp was built with a profile (`frontends/bench/pgo.sh`: an \
+                     instrumented build of this binary rendered {trained}, none of which is \
+                     timed here, and the profile steered the release build's inlining and \
+                     code layout). VolPack is Debian's build, as in the plain build's table."
+                ),
+                &report::PGO,
+            ),
+            None => (
+                "cargo run --release -p shearwarp-bench --",
+                "shearwarp was built by `cargo build --release` (the workspace's release \
+                 profile: thin LTO, one codegen unit)."
+                    .to_string(),
+                &report::PLAIN,
+            ),
         };
         let _ = writeln!(
             block,
             "Command (from the repository root):\n\n```sh\n{nice}{command} {}\n```\n",
             args.join(" ")
         );
-        let _ = match PGO {
-            Some(trained) => writeln!(
-                block,
-                "shearwarp was built with a profile (`frontends/bench/pgo.sh`: an \
-                 instrumented build of this binary rendered {trained}, none of which is \
-                 timed here, and the profile steered the release build's inlining and code \
-                 layout). VolPack is Debian's build, as in the plain build's table.\n"
-            ),
-            None => writeln!(
-                block,
-                "shearwarp was built by `cargo build --release` (the workspace's release \
-                 profile: thin LTO, one codegen unit).\n"
-            ),
-        };
+        let _ = writeln!(block, "{build}\n");
         let _ = writeln!(block, "Machine:\n\n{}", machine());
         let _ = writeln!(
             block,
@@ -597,10 +601,6 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         let _ = writeln!(block, "\n### Encoded size\n");
         block.push_str(&memory_table(&all));
         let existing = std::fs::read_to_string(md).unwrap_or_default();
-        let markers = match PGO {
-            Some(_) => &report::PGO,
-            None => &report::PLAIN,
-        };
         std::fs::write(md, report::splice(&existing, &block, markers))?;
         eprintln!("updated {}", md.display());
     }

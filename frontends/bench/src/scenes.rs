@@ -264,6 +264,17 @@ pub fn spheres(n: usize) -> Scene {
     }
 }
 
+/// The volume `name` of the shared data set (its sidecar `name.json` in `data_dir`),
+/// looking as `look`.
+fn shared(data_dir: &Path, name: &str, look: Appearance) -> Scene {
+    Scene {
+        name: name.into(),
+        source: Source::Shared(data_dir.join(format!("{name}.json"))),
+        look,
+        psnr_view: (25.0, 35.0),
+    }
+}
+
 /// The four comparison scenes.
 pub fn main_scenes(data_dir: &Path, den: &Path) -> Vec<Scene> {
     vec![
@@ -273,18 +284,16 @@ pub fn main_scenes(data_dir: &Path, den: &Path) -> Vec<Scene> {
             look: Appearance::ramp(20.0, 70.0, 0.9),
             psnr_view: (25.0, 35.0),
         },
-        Scene {
-            name: "mr_head_colin27".into(),
-            source: Source::Shared(data_dir.join("mr_head_colin27.json")),
-            look: Appearance::ramp(30.0, 90.0, 0.9),
-            psnr_view: (25.0, 35.0),
-        },
-        Scene {
-            name: "mr_brain_colin27_hires".into(),
-            source: Source::Shared(data_dir.join("mr_brain_colin27_hires.json")),
-            look: Appearance::ramp(100.0, 200.0, 0.8),
-            psnr_view: (25.0, 35.0),
-        },
+        shared(
+            data_dir,
+            "mr_head_colin27",
+            Appearance::ramp(30.0, 90.0, 0.9),
+        ),
+        shared(
+            data_dir,
+            "mr_brain_colin27_hires",
+            Appearance::ramp(100.0, 200.0, 0.8),
+        ),
         spheres(256),
     ]
 }
@@ -296,12 +305,11 @@ pub fn main_scenes(data_dir: &Path, den: &Path) -> Vec<Scene> {
 /// the supersampled frames).
 pub fn training_scenes(data_dir: &Path) -> Vec<Scene> {
     vec![
-        Scene {
-            name: "mr_pd_brain_series".into(),
-            source: Source::Shared(data_dir.join("mr_pd_brain_series.json")),
-            look: Appearance::ramp(30.0, 90.0, 0.9),
-            psnr_view: (25.0, 35.0),
-        },
+        shared(
+            data_dir,
+            "mr_pd_brain_series",
+            Appearance::ramp(30.0, 90.0, 0.9),
+        ),
         spheres(96),
         spheres(192),
     ]
