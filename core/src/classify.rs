@@ -11,6 +11,7 @@
 use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
 use crate::normal;
+use crate::rle::{Axis, Layout};
 
 /// One classified voxel: 4 bytes, the unit the run-length encoding stores.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -91,6 +92,8 @@ pub struct Grid {
     /// Diagonal the image is framed on: this volume's, or the full-resolution one's for
     /// a level of detail.
     frame_diagonal: f64,
+    /// Which axis each run-length-encoded copy runs its scanlines along.
+    layout: Layout,
 }
 
 impl Grid {
@@ -122,6 +125,7 @@ impl Grid {
             spacing,
             opacity_unit: 0.0,
             frame_diagonal: 0.0,
+            layout: Layout::fewest_rows(dims),
         };
         g.opacity_unit = g.min_spacing();
         g.frame_diagonal = g.diagonal();
@@ -135,6 +139,33 @@ impl Grid {
         self.opacity_unit = full.opacity_unit;
         self.frame_diagonal = full.frame_diagonal;
         self
+    }
+
+    /// This grid with its copies laid out as `layout` (a file's; [`Grid::new`] gives
+    /// [`Layout::fewest_rows`]).
+    pub fn with_layout(mut self, layout: Layout) -> Grid {
+        self.layout = layout;
+        self
+    }
+
+    /// How the run-length-encoded copies of this volume are laid out.
+    pub fn layout(&self) -> Layout {
+        self.layout
+    }
+
+    /// Object axes `(i, j, k)` of `axis`'s copy.
+    pub fn permutation(&self, axis: Axis) -> [usize; 3] {
+        self.layout.permutation(axis)
+    }
+
+    /// Sizes `(ni, nj, nk)` of `axis`'s copy.
+    pub fn permuted_dims(&self, axis: Axis) -> [usize; 3] {
+        self.layout.permuted_dims(axis, self.dims)
+    }
+
+    /// `v`, given per object axis, per role `(i, j, k)` in `axis`'s copy.
+    pub fn permute<T: Copy>(&self, axis: Axis, v: [T; 3]) -> [T; 3] {
+        self.layout.permute(axis, v)
     }
 
     /// Length that transfer-function opacities are given per.

@@ -84,10 +84,7 @@ impl DepthFrame {
         let extent = hi - lo;
         let scale = if extent > 0.0 { 1.0 / extent } else { 0.0 };
         // Normalised depth d = Σ g_a·x_a − lo·scale, with g_a = per_axis·scale.
-        let p = view.axis.permutation();
-        let gi = per_axis[p[0]] * scale;
-        let gj = per_axis[p[1]] * scale;
-        let gk = per_axis[p[2]] * scale;
+        let [gi, gj, gk] = view.permute(per_axis).map(|g| g * scale);
         let e = -lo * scale;
         // Substitute i = u − s_i·k − t_i, j = v − s_j·k − t_j.
         let [si, sj] = view.shear;
@@ -217,7 +214,7 @@ mod tests {
                 }
                 (z(x) - lo) / (hi - lo)
             };
-            let p = v.axis.permutation();
+            let p = v.perm();
             for obj in [[0usize, 0, 0], [19, 29, 24], [5, 17, 3], [12, 2, 20]] {
                 let (i, j, k) = (obj[p[0]], obj[p[1]], obj[p[2]]);
                 let u = i as f64 + v.shear[0] * k as f64 + v.translate[0];

@@ -419,17 +419,16 @@ pub fn composite_band(
     let (ert, iso_q8, corr) = (frame.ert, frame.iso_q8, &frame.corr);
     let (row0, rows) = (img.first_row(), img.rows());
     let [iw, _] = view.intermediate;
-    let p = view.axis.permutation();
     let ostride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
     let vol = Dense {
         voxels,
         n: view.dims,
-        stride: [ostride[p[0]], ostride[p[1]], ostride[p[2]]],
+        stride: view.permute(ostride),
     };
     let nb_obj = grid.dims.map(|n| n.div_ceil(BRICK));
-    let nb = [nb_obj[p[0]], nb_obj[p[1]], nb_obj[p[2]]];
+    let nb = view.permute(nb_obj);
     let bstride_obj = [1, nb_obj[0], nb_obj[0] * nb_obj[1]];
-    let bstride = [bstride_obj[p[0]], bstride_obj[p[1]], bstride_obj[p[2]]];
+    let bstride = view.permute(bstride_obj);
     let nk = view.dims[2];
     let (ni, nj) = (view.dims[0] as i64, view.dims[1] as i64);
     let slabs = match frame.mode {

@@ -11,9 +11,11 @@
 //! Three copies exist because the compositor streams slices in storage order along
 //! whichever axis is principal for the view.
 //!
-//! Axis order inside a slice follows the thesis' permutation to keep the principal axis
-//! last and the cycle right-handed: principal x → (i, j, k) = (y, z, x); principal y →
-//! (z, x, y); principal z → (x, y, z).
+//! The principal axis is always `k`. Which of the other two runs along the scanlines
+//! (`i`) is the volume's [`Layout`]: the thesis keeps the right-handed cycle (principal
+//! x → (i, j, k) = (y, z, x); y → (z, x, y); z → (x, y, z)); shearwarp runs the
+//! scanlines along the longer of the two instead ([`Layout::fewest_rows`]), since a
+//! slice's cost is mostly per scanline.
 
 use crate::classify::{Grid, Voxel};
 use crate::error::{need, prefix_mut, Error};
@@ -42,19 +44,83 @@ impl Axis {
     /// All three, in storage order.
     pub const ALL: [Axis; 3] = [Axis::X, Axis::Y, Axis::Z];
 
-    /// Object axes that play the roles (i, j, k) when this axis is principal.
-    pub const fn permutation(self) -> [usize; 3] {
-        match self {
-            Axis::X => [1, 2, 0],
-            Axis::Y => [2, 0, 1],
-            Axis::Z => [0, 1, 2],
+    /// Object axes `(i, j, k)` of the thesis' right-handed cycle with this axis principal.
+    pub const fn cycle(self) -> [usize; 3] {
+        Layout::CYCLE.permutation(self)
+    }
+}
+
+/// Which object axis each axis copy runs its scanlines along: per principal axis, the
+/// first of the cycle's other two ([`Axis::cycle`]) or, with its bit set, the second.
+///
+/// A slice costs the compositor mostly per scanline (each voxel row is tested against the
+/// opaque pixels, its spans walked, its pixels' runs found), little per voxel, so a
+/// slice of fewer, longer scanlines is cheaper: the hires Colin27 brain (301×370×316)
+/// seen along z is 370 rows of 301 voxels in the cycle, 301 rows of 370 across it. The
+/// image is the same: the intermediate image is transposed and the warp maps it back.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Layout(u8);
+
+impl Layout {
+    /// The thesis' cycle for every axis (`.swv` version 1 files).
+    pub const CYCLE: Layout = Layout(0);
+    /// Every copy across the cycle (with [`Layout::CYCLE`], bounds buffer sizes for any
+    /// layout).
+    pub const ALL_SWAPPED: Layout = Layout(7);
+
+    /// Scanlines along the longer of the two in-slice axes of every copy (the cycle's
+    /// first on a tie): the layout [`Grid::new`] gives a volume.
+    pub const fn fewest_rows(dims: [usize; 3]) -> Layout {
+        let mut bits = 0;
+        let mut a = 0;
+        while a < 3 {
+            let [ni, nj, _] = Layout::CYCLE.permute(Axis::ALL[a], dims);
+            if nj > ni {
+                bits |= 1 << a;
+            }
+            a += 1;
+        }
+        Layout(bits)
+    }
+
+    /// The layout stored as `bits` (bit `a` for axis `a`), `None` if a bit past the
+    /// three is set.
+    pub const fn from_bits(bits: u8) -> Option<Layout> {
+        if bits < 8 {
+            Some(Layout(bits))
+        } else {
+            None
         }
     }
 
-    /// Sizes `(ni, nj, nk)` of the permuted grid.
-    pub const fn permuted_dims(self, dims: [usize; 3]) -> [usize; 3] {
-        let p = self.permutation();
-        [dims[p[0]], dims[p[1]], dims[p[2]]]
+    /// Bit `a` set if axis `a`'s copy runs its scanlines along the cycle's `j`.
+    pub const fn bits(self) -> u8 {
+        self.0
+    }
+
+    /// `v`, given per object axis (x, y, z), per role `(i, j, k)` in `axis`'s copy.
+    /// Written out per case, so that no index is computed: the bare-metal build proves
+    /// it has no panic path, and a permutation read from memory would need bounds checks.
+    pub const fn permute<T: Copy>(self, axis: Axis, v: [T; 3]) -> [T; 3] {
+        let [x, y, z] = v;
+        match (axis, self.0 >> axis as u8 & 1 != 0) {
+            (Axis::X, false) => [y, z, x],
+            (Axis::X, true) => [z, y, x],
+            (Axis::Y, false) => [z, x, y],
+            (Axis::Y, true) => [x, z, y],
+            (Axis::Z, false) => [x, y, z],
+            (Axis::Z, true) => [y, x, z],
+        }
+    }
+
+    /// Object axes that play the roles `(i, j, k)` in `axis`'s copy.
+    pub const fn permutation(self, axis: Axis) -> [usize; 3] {
+        self.permute(axis, [0, 1, 2])
+    }
+
+    /// Sizes `(ni, nj, nk)` of `axis`'s copy of a volume of `dims`.
+    pub const fn permuted_dims(self, axis: Axis, dims: [usize; 3]) -> [usize; 3] {
+        self.permute(axis, dims)
     }
 }
 
@@ -85,8 +151,8 @@ const CLEAR: Voxel = Voxel {
 /// Walks the dense volume along the permuted scanlines of `axis`, calling `f(Some(voxel))`
 /// per voxel and `f(None)` at each scanline end.
 fn walk(dense: &[Voxel], grid: &Grid, axis: Axis, mut f: impl FnMut(Option<&Voxel>)) {
-    let p = axis.permutation();
-    let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+    let p = grid.permutation(axis);
+    let [ni, nj, nk] = grid.permuted_dims(axis);
     let stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
     let (si, sj, sk) = (stride[p[0]], stride[p[1]], stride[p[2]]);
     for k in 0..nk {
@@ -284,7 +350,7 @@ pub fn measure(
         Some(v) => w.push(v, is_visible(v, threshold)),
         None => w.end_scanline(),
     });
-    let [_, nj, nk] = axis.permuted_dims(grid.dims);
+    let [_, nj, nk] = grid.permuted_dims(axis);
     Ok(AxisSizes {
         runs: w.n_runs,
         voxels: w.n_vox,
@@ -320,7 +386,7 @@ pub fn encode<'a>(
 pub struct Encoder<'a> {
     writer: RunWriter<'a>,
     scans: &'a mut [ScanIndex],
-    dims: [usize; 3],
+    grid: Grid,
     axis: Axis,
     threshold: u8,
     /// Scanlines finished so far.
@@ -338,7 +404,7 @@ impl<'a> Encoder<'a> {
         voxels: &'a mut [Voxel],
         scans: &'a mut [ScanIndex],
     ) -> Result<Self, Error> {
-        let [_, nj, nk] = axis.permuted_dims(grid.dims);
+        let [_, nj, nk] = grid.permuted_dims(axis);
         let scans = prefix_mut("scans", scans, nj * nk + 1)?;
         if let Some(first) = scans.first_mut() {
             *first = ScanIndex { run: 0, voxel: 0 };
@@ -346,7 +412,7 @@ impl<'a> Encoder<'a> {
         Ok(Encoder {
             writer: RunWriter::new(Some(runs), Some(voxels)),
             scans,
-            dims: grid.dims,
+            grid: *grid,
             axis,
             threshold,
             line: 0,
@@ -355,7 +421,7 @@ impl<'a> Encoder<'a> {
 
     /// Appends the next slice: `ni·nj` voxels, `i` fastest.
     pub fn push_slice(&mut self, slice: &[Voxel]) -> Result<(), Error> {
-        let [ni, nj, _] = self.axis.permuted_dims(self.dims);
+        let [ni, nj, _] = self.grid.permuted_dims(self.axis);
         if slice.len() != ni * nj {
             return Err(Error::BadParameter {
                 reason: "slice length is not ni·nj of the axis copy",
@@ -422,7 +488,7 @@ impl<'a> Encoder<'a> {
         need("voxels", n_vox, voxels.len())?;
         let runs = &runs[..n_runs];
         let voxels = &voxels[..n_vox];
-        RleAxis::new(self.dims, self.axis, runs, voxels, self.scans)
+        RleAxis::new(&self.grid, self.axis, runs, voxels, self.scans)
     }
 }
 
@@ -432,6 +498,7 @@ impl<'a> Encoder<'a> {
 pub struct RleAxis<'a> {
     axis: Axis,
     dims: [usize; 3],
+    layout: Layout,
     runs: &'a [u8],
     voxels: &'a [Voxel],
     scans: &'a [ScanIndex],
@@ -441,13 +508,13 @@ impl<'a> RleAxis<'a> {
     /// Wraps and validates arrays (from [`encode`] or from a file): every scanline's runs
     /// must sum to its width, come in pairs, and account for exactly its voxels.
     pub fn new(
-        dims: [usize; 3],
+        grid: &Grid,
         axis: Axis,
         runs: &'a [u8],
         voxels: &'a [Voxel],
         scans: &'a [ScanIndex],
     ) -> Result<Self, Error> {
-        let [ni, nj, nk] = axis.permuted_dims(dims);
+        let [ni, nj, nk] = grid.permuted_dims(axis);
         let lines = nj.checked_mul(nk).ok_or(Error::BadDimensions {
             reason: "too many scanlines",
         })?;
@@ -471,7 +538,8 @@ impl<'a> RleAxis<'a> {
         }
         Ok(RleAxis {
             axis,
-            dims,
+            dims: grid.dims,
+            layout: grid.layout(),
             runs,
             voxels,
             scans,
@@ -488,6 +556,16 @@ impl<'a> RleAxis<'a> {
         self.dims
     }
 
+    /// Object axes `(i, j, k)` of this copy.
+    pub fn permutation(&self) -> [usize; 3] {
+        self.layout.permutation(self.axis)
+    }
+
+    /// Sizes `(ni, nj, nk)` of this copy's slices and scanlines.
+    pub fn permuted_dims(&self) -> [usize; 3] {
+        self.layout.permuted_dims(self.axis, self.dims)
+    }
+
     /// Borrowed arrays `(runs, voxels, scans)`, e.g. for serialisation.
     pub fn parts(&self) -> (&'a [u8], &'a [Voxel], &'a [ScanIndex]) {
         (self.runs, self.voxels, self.scans)
@@ -495,7 +573,7 @@ impl<'a> RleAxis<'a> {
 
     /// Slice `k` (in the permuted grid), or `None` past the end.
     pub fn slice(&self, k: usize) -> Option<RleSlice<'a>> {
-        let [ni, nj, nk] = self.axis.permuted_dims(self.dims);
+        let [ni, nj, nk] = self.permuted_dims();
         if k >= nk {
             return None;
         }
@@ -517,8 +595,8 @@ impl<'a> RleAxis<'a> {
     pub fn decode(&self, out: &mut [Voxel]) -> Result<(), Error> {
         let n = self.dims[0] * self.dims[1] * self.dims[2];
         need("dense voxels", n, out.len())?;
-        let p = self.axis.permutation();
-        let [_, nj, nk] = self.axis.permuted_dims(self.dims);
+        let p = self.permutation();
+        let [_, nj, nk] = self.permuted_dims();
         let stride = [1, self.dims[0], self.dims[0] * self.dims[1]];
         // `p` is a permutation of 0..3.
         let [si, sj, sk] = p.map(|a| stride.get(a).copied().unwrap_or(0));
@@ -879,8 +957,10 @@ mod tests {
 
     #[test]
     fn visible_rows_are_the_first_and_last_scanlines_with_voxels() {
-        // 2×6×1, one slice: rows 1 and 3 hold a voxel, the others are empty.
-        let grid = Grid::new([2, 6, 1], [1.0; 3]).unwrap();
+        // 2×6×1, one slice of six rows: rows 1 and 3 hold a voxel, the others are empty.
+        let grid = Grid::new([2, 6, 1], [1.0; 3])
+            .unwrap()
+            .with_layout(Layout::CYCLE);
         let mut dense = [Voxel::default(); 12];
         dense[2 + 1].opacity = 9;
         dense[6].opacity = 9;
@@ -929,30 +1009,30 @@ mod tests {
 
     #[test]
     fn malformed_streams_are_rejected() {
-        let dims = [4, 1, 1];
+        let grid = Grid::new([4, 1, 1], [1.0; 3]).unwrap();
         let v = [Voxel::default(); 2];
         let ok = [
             ScanIndex { run: 0, voxel: 0 },
             ScanIndex { run: 4, voxel: 2 },
         ];
-        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &ok).is_ok());
+        assert!(RleAxis::new(&grid, Axis::Z, &[1, 1, 1, 1], &v, &ok).is_ok());
         // Wrong sum.
-        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 2], &v, &ok).is_err());
+        assert!(RleAxis::new(&grid, Axis::Z, &[1, 1, 1, 2], &v, &ok).is_err());
         // Odd run count.
         let odd = [
             ScanIndex { run: 0, voxel: 0 },
             ScanIndex { run: 3, voxel: 2 },
         ];
-        assert!(RleAxis::new(dims, Axis::Z, &[2, 1, 1], &v, &odd).is_err());
+        assert!(RleAxis::new(&grid, Axis::Z, &[2, 1, 1], &v, &odd).is_err());
         // Voxel count mismatch.
-        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 2, 0], &v, &ok).is_err());
+        assert!(RleAxis::new(&grid, Axis::Z, &[1, 1, 2, 0], &v, &ok).is_err());
         // Index past the arrays.
         let far = [
             ScanIndex { run: 0, voxel: 0 },
             ScanIndex { run: 9, voxel: 2 },
         ];
-        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &far).is_err());
+        assert!(RleAxis::new(&grid, Axis::Z, &[1, 1, 1, 1], &v, &far).is_err());
         // Wrong index length.
-        assert!(RleAxis::new(dims, Axis::Z, &[1, 1, 1, 1], &v, &ok[..1]).is_err());
+        assert!(RleAxis::new(&grid, Axis::Z, &[1, 1, 1, 1], &v, &ok[..1]).is_err());
     }
 }

@@ -40,8 +40,7 @@ impl ShadowFrame {
             -(r[0][a] * light[0] + r[1][a] * light[1] + r[2][a] * light[2])
         });
         let idx: [f64; 3] = core::array::from_fn(|a| obj[a] / grid.spacing[a]);
-        let p = view.axis.permutation();
-        let (li, lj, lk) = (idx[p[0]], idx[p[1]], idx[p[2]]);
+        let [li, lj, lk] = view.permute(idx);
         let aligned = libm::fabs(lk) >= libm::fabs(li) && libm::fabs(lk) >= libm::fabs(lj);
         if !(aligned && lk != 0.0 && (lk > 0.0) == view.k_increasing) {
             return Err(Error::BadParameter {
@@ -58,7 +57,7 @@ impl ShadowFrame {
             libm::floor((ni - 1) as f64 + libm::fabs(shear[0]) * kspan) as usize + 2,
             libm::floor((nj - 1) as f64 + libm::fabs(shear[1]) * kspan) as usize + 2,
         ];
-        let sp = [grid.spacing[p[0]], grid.spacing[p[1]], grid.spacing[p[2]]];
+        let sp = view.permute(grid.spacing);
         let st = [shear[0] * sp[0], shear[1] * sp[1], sp[2]];
         let len = libm::sqrt(st[0] * st[0] + st[1] * st[1] + st[2] * st[2]);
         Ok(ShadowFrame {

@@ -1,7 +1,7 @@
 //! The `.swv` file: a run-length-encoded classified volume that can be streamed one slice
 //! at a time from any [`Read`] + [`Seek`] source, with fixed-size buffers.
 //!
-//! # Format, version 1
+//! # Format, version 2
 //!
 //! All integers little-endian; `f32`/`f64` are IEEE 754 little-endian. Offsets are
 //! absolute from the start of the file.
@@ -11,13 +11,13 @@
 //! | offset | type | field |
 //! |---|---|---|
 //! | 0 | `[u8; 8]` | magic `89 53 57 56 0D 0A 1A 0A` (`\x89SWV\r\n\x1a\n`, PNG-style: catches text-mode and 7-bit transfers) |
-//! | 8 | `u16` | version = 1 |
+//! | 8 | `u16` | version = 2 (version 1 is read too: its layout byte is 0) |
 //! | 10 | `u16` | reserved, 0 |
 //! | 12 | `u32 × 3` | dims `nx, ny, nz` (each 1..=4096) |
 //! | 24 | `f64 × 3` | spacing `sx, sy, sz` (positive, finite) |
 //! | 48 | `u16 × 2` | raw value range `lo, hi` that the 8-bit scalars were quantised over |
 //! | 52 | `u8` | opacity threshold: stored voxels have opacity > threshold |
-//! | 53 | `u8` | reserved, 0 |
+//! | 53 | `u8` | layout: bit `a` set if the copy for principal axis `a` (0 = x, 1 = y, 2 = z) runs its scanlines along the second of its cycle's in-slice axes ([`crate::rle::Layout`]); bits 3–7 zero |
 //! | 54 | `u16` | reserved, 0 |
 //! | 56 | `u32` | CRC-32 of bytes `64 .. TABLES_END` (look block and slice tables) |
 //! | 60 | `u32` | CRC-32 of bytes `0..60` |
@@ -54,7 +54,8 @@
 //! ## Slice records
 //!
 //! A slice perpendicular to principal axis `a` has `nj` scanlines of `ni` voxels, with
-//! `(ni, nj)` as in [`crate::rle::Axis::permuted_dims`]. Its record is
+//! `(ni, nj)` as in [`crate::rle::Layout::permuted_dims`] for the header's layout. Its
+//! record is
 //!
 //! 1. `nj + 1` scanline entries `(u32 first run, u32 first voxel)`, relative to the
 //!    slice (the first is `(0, 0)`, the last is `(runs, voxels)`);
@@ -78,14 +79,15 @@
 use crate::classify::{ColorTable, Grid, Voxel};
 use crate::error::Error;
 use crate::io::{Crc32, IoError, Read, Seek};
-use crate::rle::{Axis, RleSlice, ScanIndex};
+use crate::rle::{Axis, Layout, RleSlice, ScanIndex};
 use crate::shade::{Light, Lighting, MAX_LIGHTS};
 use crate::source::{RleVolume, SliceSource};
 
 /// File signature.
 pub const MAGIC: [u8; 8] = [0x89, b'S', b'W', b'V', b'\r', b'\n', 0x1a, b'\n'];
-/// Format version this code reads and writes.
-pub const VERSION: u16 = 1;
+/// Format version this code writes; it reads this one and version 1 (the same format,
+/// written before the layout byte, whose copies all follow [`Layout::CYCLE`]).
+pub const VERSION: u16 = 2;
 /// Header length.
 pub const HEADER_LEN: usize = 64;
 /// Look block length.
@@ -259,9 +261,10 @@ impl HeaderParser {
                 reason: "wrong magic: not a .swv volume",
             });
         }
-        if u16_at(b, 8) != VERSION {
+        let version = u16_at(b, 8);
+        if version != VERSION && version != 1 {
             return Err(Error::Format {
-                reason: "unsupported version (this reader knows version 1)",
+                reason: "unsupported version (this reader knows versions 1 and 2)",
             });
         }
         if u32_at(b, 60) != Crc32::of(&b[..60]) {
@@ -275,7 +278,17 @@ impl HeaderParser {
             u32_at(b, 20) as usize,
         ];
         let spacing = [f64_at(b, 24), f64_at(b, 32), f64_at(b, 40)];
-        let grid = Grid::new(dims, spacing)?;
+        let layout = match version {
+            // Version 1 wrote the byte as reserved, zero.
+            1 => (b[53] == 0).then_some(Layout::CYCLE),
+            _ => Layout::from_bits(b[53]),
+        };
+        let Some(layout) = layout else {
+            return Err(Error::Format {
+                reason: "unknown bits in the layout byte",
+            });
+        };
+        let grid = Grid::new(dims, spacing)?.with_layout(layout);
         let range = (u16_at(b, 48), u16_at(b, 50));
         if range.0 > range.1 {
             return Err(Error::Format {
@@ -523,9 +536,8 @@ impl<R: Read + Seek, const SCANS: usize, const RUNS: usize, const VOXELS: usize>
     /// checks that every scanline count fits `SCANS`.
     pub fn open(mut reader: R) -> Result<Self, Error> {
         let header = read_header(&mut reader)?;
-        let d = header.grid.dims;
         for axis in Axis::ALL {
-            let [_, nj, _] = axis.permuted_dims(d);
+            let [_, nj, _] = header.grid.permuted_dims(axis);
             crate::error::need("slice scanline capacity", nj + 1, SCANS)?;
         }
         Ok(StreamSource {
@@ -604,7 +616,7 @@ pub fn read_entry<R: Read + Seek>(
     axis: Axis,
     k: usize,
 ) -> Result<SliceEntry, Error> {
-    let [_, _, nk] = axis.permuted_dims(header.grid.dims);
+    let [_, _, nk] = header.grid.permuted_dims(axis);
     if k >= nk {
         return Err(Error::Source {
             reason: "slice index past the end of the volume",
@@ -635,7 +647,7 @@ pub fn read_slice<'b, R: Read + Seek>(
     runs: &'b mut [u8],
     voxels: &'b mut [Voxel],
 ) -> Result<RleSlice<'b>, Error> {
-    let [ni, nj, _] = axis.permuted_dims(header.grid.dims);
+    let [ni, nj, _] = header.grid.permuted_dims(axis);
     reader.seek(entry.offset)?;
     let mut parser = RecordParser::new(nj, entry, scans, runs, voxels)?;
     let mut buf = [0u8; CHUNK];
@@ -733,7 +745,7 @@ fn for_each_entry(
     let mut offset = (TABLES_START + ENTRY_LEN * (d[0] + d[1] + d[2])) as u64;
     for axis in Axis::ALL {
         let a = vol.axis(axis);
-        let [_, nj, nk] = axis.permuted_dims(d);
+        let [_, nj, nk] = vol.grid().permuted_dims(axis);
         for k in 0..nk {
             let s = a.slice(k).ok_or(Error::Source {
                 reason: "slice index past the end of the volume",
@@ -779,6 +791,7 @@ pub fn write<W: Write>(
     h[48..50].copy_from_slice(&range.0.to_le_bytes());
     h[50..52].copy_from_slice(&range.1.to_le_bytes());
     h[52] = threshold;
+    h[53] = grid.layout().bits();
     h[56..60].copy_from_slice(&tables_crc.finish().to_le_bytes());
     let hc = Crc32::of(&h[..60]);
     h[60..64].copy_from_slice(&hc.to_le_bytes());
@@ -787,7 +800,7 @@ pub fn write<W: Write>(
     for_each_entry(vol, |e| w.write_all(&e.bytes()))?;
     for axis in Axis::ALL {
         let a = vol.axis(axis);
-        let [_, _, nk] = axis.permuted_dims(grid.dims);
+        let [_, _, nk] = grid.permuted_dims(axis);
         for k in 0..nk {
             if let Some(s) = a.slice(k) {
                 write_record(w, &s)?;
@@ -798,15 +811,21 @@ pub fn write<W: Write>(
 }
 
 /// Buffer capacities a [`StreamSource`] needs for a volume of `dims` in the worst case
-/// (every voxel stored, every other voxel transparent): `(SCANS, RUNS, VOXELS)`.
+/// (every voxel stored, every other voxel transparent), for a file of either layout
+/// of its copies: `(SCANS, RUNS, VOXELS)`.
 pub const fn worst_case_capacity(dims: [usize; 3]) -> (usize, usize, usize) {
     let mut scans = 0;
     let mut runs = 0;
     let mut voxels = 0;
     let axes = [Axis::X, Axis::Y, Axis::Z];
     let mut a = 0;
-    while a < 3 {
-        let [ni, nj, _] = axes[a].permuted_dims(dims);
+    while a < 6 {
+        let layout = if a < 3 {
+            Layout::CYCLE
+        } else {
+            Layout::ALL_SWAPPED
+        };
+        let [ni, nj, _] = layout.permuted_dims(axes[a % 3], dims);
         if nj + 1 > scans {
             scans = nj + 1;
         }
@@ -874,7 +893,14 @@ mod tests {
     type AxisArrays = (Vec<u8>, Vec<Voxel>, Vec<ScanIndex>);
 
     fn encoded() -> (Grid, Vec<AxisArrays>) {
-        let grid = Grid::new(DIMS, [1.0, 1.2, 0.9]).unwrap();
+        encoded_as(Grid::new(DIMS, [1.0, 1.2, 0.9]).unwrap().layout())
+    }
+
+    /// The test volume, its copies laid out as `layout`.
+    fn encoded_as(layout: Layout) -> (Grid, Vec<AxisArrays>) {
+        let grid = Grid::new(DIMS, [1.0, 1.2, 0.9])
+            .unwrap()
+            .with_layout(layout);
         let mut data = Vec::new();
         for z in 0..DIMS[2] {
             for y in 0..DIMS[1] {
@@ -909,15 +935,20 @@ mod tests {
     }
 
     fn file() -> Vec<u8> {
-        let (grid, store) = encoded();
-        let axes: Vec<RleAxis<'_>> = Axis::ALL
-            .iter()
-            .map(|&a| {
-                let (r, v, s) = &store[a as usize];
-                RleAxis::new(grid.dims, a, r, v, s).unwrap()
-            })
-            .collect();
-        let vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        file_of(encoded())
+    }
+
+    /// The copies `store` of a volume on `grid`, as one.
+    fn volume_of(grid: Grid, store: &[AxisArrays]) -> RleVolume<'_> {
+        let axes = Axis::ALL.map(|a| {
+            let (r, v, s) = &store[a as usize];
+            RleAxis::new(&grid, a, r, v, s).unwrap()
+        });
+        RleVolume::new(grid, axes).unwrap()
+    }
+
+    fn file_of((grid, store): (Grid, Vec<AxisArrays>)) -> Vec<u8> {
+        let vol = volume_of(grid, &store);
         let mut w = VecWriter(Vec::new());
         write(&mut w, &vol, (0, 255), 2, &look()).unwrap();
         w.0
@@ -948,14 +979,7 @@ mod tests {
     fn streamed_rendering_equals_in_memory_for_any_chunking() {
         let bytes = file();
         let (grid, store) = encoded();
-        let axes: Vec<RleAxis<'_>> = Axis::ALL
-            .iter()
-            .map(|&a| {
-                let (r, v, s) = &store[a as usize];
-                RleAxis::new(grid.dims, a, r, v, s).unwrap()
-            })
-            .collect();
-        let mut mem = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+        let mut mem = volume_of(grid, &store);
         let lk = look();
         let expect = render_with(&mut mem, &lk);
         assert!(expect.iter().any(|p| p[3] > 50));
@@ -976,13 +1000,46 @@ mod tests {
         }
     }
 
+    #[test]
+    fn the_layout_is_written_and_read_back() {
+        // DIMS run the x copy's scanlines along z (longer than y) and the y copy's along
+        // x (longer than z), both across the cycle, and the z copy's along x, the cycle's.
+        assert_eq!(encoded().0.layout().bits(), 0b011);
+        for layout in [Layout::CYCLE, Layout::ALL_SWAPPED, encoded().0.layout()] {
+            let bytes = file_of(encoded_as(layout));
+            assert_eq!(u16_at(&bytes, 8), VERSION);
+            let s: Src<_> = StreamSource::open(crate::io::SliceReader::new(&bytes)).unwrap();
+            assert_eq!(s.header().grid.layout(), layout);
+        }
+    }
+
+    #[test]
+    fn version_1_files_are_read_in_the_cycle_layout() {
+        // A version 1 file is a version 2 file of the cycle layout with its version
+        // number changed: it renders as the volume does in memory.
+        let (grid, store) = encoded_as(Layout::CYCLE);
+        let mut bytes = file_of((grid, store.clone()));
+        bytes[8..10].copy_from_slice(&1u16.to_le_bytes());
+        refresh_crcs(&mut bytes, None);
+        let mut s: Src<_> = StreamSource::open(crate::io::SliceReader::new(&bytes)).unwrap();
+        assert_eq!(s.header().grid.layout(), Layout::CYCLE);
+        let mut mem = volume_of(grid, &store);
+        let lk = look();
+        let stored = s.header().look.clone();
+        assert_eq!(render_with(&mut s, &stored), render_with(&mut mem, &lk));
+        // A version 1 file with a layout byte is corrupt.
+        bytes[53] = 1;
+        refresh_crcs(&mut bytes, None);
+        assert!(matches!(open_err(&bytes), Error::Format { .. }));
+    }
+
     fn open_err(bytes: &[u8]) -> Error {
         match Src::open(crate::io::SliceReader::new(bytes)) {
             Err(e) => e,
             Ok(mut s) => {
                 // Header fine: the error must come from the slices.
                 for axis in Axis::ALL {
-                    let [_, _, nk] = axis.permuted_dims(DIMS);
+                    let [_, _, nk] = s.header().grid.permuted_dims(axis);
                     for k in 0..nk {
                         if let Err(e) = s.with_slice(axis, k, |_| ()) {
                             return e;
@@ -1000,8 +1057,9 @@ mod tests {
             let off = u32_at(b, o) as usize;
             let runs = u32_at(b, o + 8) as usize;
             let vox = u32_at(b, o + 12) as usize;
-            // Entry e < nx is an x-axis slice: nj = nz.
-            let len = 8 * (DIMS[2] + 1) + runs + 4 * vox;
+            // Entry e < nx is an x-axis slice.
+            let [_, nj, _] = encoded().0.permuted_dims(Axis::X);
+            let len = 8 * (nj + 1) + runs + 4 * vox;
             let c = Crc32::of(&b[off..off + len]);
             b[o + 16..o + 20].copy_from_slice(&c.to_le_bytes());
         }
@@ -1025,9 +1083,14 @@ mod tests {
         assert!(fmt(open_err(&b)).contains("magic"));
         // Wrong version.
         let mut b = good.clone();
-        b[8] = 2;
+        b[8] = 3;
         refresh_crcs(&mut b, None);
         assert!(fmt(open_err(&b)).contains("version"));
+        // A layout bit past the three axes.
+        let mut b = good.clone();
+        b[53] |= 8;
+        refresh_crcs(&mut b, None);
+        assert!(fmt(open_err(&b)).contains("layout"));
         // Header checksum.
         let mut b = good.clone();
         b[20] ^= 1;

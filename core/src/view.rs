@@ -16,7 +16,7 @@
 use crate::classify::Grid;
 use crate::error::Error;
 use crate::fixed::ONE;
-use crate::rle::Axis;
+use crate::rle::{Axis, Layout};
 
 /// Largest accepted image side.
 pub const MAX_IMAGE: usize = 16384;
@@ -95,6 +95,8 @@ impl SliceOffset {
 pub struct Factorization {
     /// Principal axis.
     pub axis: Axis,
+    /// How the volume's copies are laid out ([`Grid::layout`]).
+    pub layout: Layout,
     /// Permuted dimensions `(ni, nj, nk)`.
     pub dims: [usize; 3],
     /// Shear coefficients `(s_i, s_j)`: slice `k` moves by `s·k` pixels.
@@ -161,6 +163,16 @@ pub struct SliceScale {
 }
 
 impl Factorization {
+    /// Object axes `(i, j, k)` of the principal axis's copy.
+    pub fn perm(&self) -> [usize; 3] {
+        self.layout.permutation(self.axis)
+    }
+
+    /// `v`, given per object axis, per role `(i, j, k)` in the principal axis's copy.
+    pub fn permute<T: Copy>(&self, v: [T; 3]) -> [T; 3] {
+        self.layout.permute(self.axis, v)
+    }
+
     /// Factors the view of `grid` through `camera`.
     pub fn new(grid: &Grid, camera: &Camera) -> Result<Self, Error> {
         check_camera(camera)?;
@@ -178,10 +190,9 @@ impl Factorization {
         } else if mag[1] >= mag[2] {
             axis = Axis::Y;
         }
-        let p = axis.permutation();
-        let dims = axis.permuted_dims(grid.dims);
+        let dims = grid.permuted_dims(axis);
         let [ni, nj, nk] = dims;
-        let (di, dj, dk) = (dir[p[0]], dir[p[1]], dir[p[2]]);
+        let [di, dj, dk] = grid.permute(axis, dir);
         let shear = [-di / dk, -dj / dk];
         let kspan = (nk - 1) as f64;
         let translate = shear.map(|s| if s < 0.0 { -s * kspan } else { 0.0 });
@@ -206,8 +217,7 @@ impl Factorization {
             let i1 = to_image(e);
             [i1[0] - i0[0], i1[1] - i0[1]]
         };
-        let ci = unit(p[0]);
-        let cj = unit(p[1]);
+        let [ci, cj, _] = grid.permute(axis, [unit(0), unit(1), unit(2)]);
         let origin = to_image([
             -((grid.dims[0] - 1) as f64) * 0.5 * grid.spacing[0],
             -((grid.dims[1] - 1) as f64) * 0.5 * grid.spacing[1],
@@ -230,11 +240,12 @@ impl Factorization {
         };
         let image_to_intermediate = [row(0, translate[0]), row(1, translate[1]), [0.0, 0.0, 1.0]];
 
-        let sp = [grid.spacing[p[0]], grid.spacing[p[1]], grid.spacing[p[2]]];
+        let sp = grid.permute(axis, grid.spacing);
         let step = [shear[0] * sp[0], shear[1] * sp[1], sp[2]];
         let step_len = libm::sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2]);
         Ok(Factorization {
             axis,
+            layout: grid.layout(),
             dims,
             shear,
             translate,
@@ -277,9 +288,9 @@ impl Factorization {
             core::array::from_fn(|a| dist * rot[2][a] / grid.spacing[a] + n[a] * 0.5);
         let mut best: Option<(Axis, f64)> = None;
         for axis in [Axis::Z, Axis::Y, Axis::X] {
-            let p = axis.permutation();
-            let ek = eye_idx[p[2]];
-            if ek > -1e-9 && ek < n[p[2]] + 1e-9 {
+            let [_, _, ek] = grid.permute(axis, eye_idx);
+            let [_, _, nk] = grid.permute(axis, n);
+            if ek > -1e-9 && ek < nk + 1e-9 {
                 continue;
             }
             let mut worst = f64::INFINITY;
@@ -287,8 +298,8 @@ impl Factorization {
                 let corner: [f64; 3] =
                     core::array::from_fn(|a| if c >> a & 1 == 1 { n[a] } else { 0.0 });
                 let d: [f64; 3] = core::array::from_fn(|a| libm::fabs(corner[a] - eye_idx[a]));
-                let side = d[p[0]].max(d[p[1]]).max(1e-12);
-                worst = worst.min(d[p[2]] / side);
+                let [di, dj, dk] = grid.permute(axis, d);
+                worst = worst.min(dk / di.max(dj).max(1e-12));
             }
             if best.is_none_or(|(_, b)| worst > b) {
                 best = Some((axis, worst));
@@ -299,10 +310,9 @@ impl Factorization {
                 reason: "the eye lies inside the volume",
             });
         };
-        let p = axis.permutation();
-        let dims = axis.permuted_dims(grid.dims);
+        let dims = grid.permuted_dims(axis);
         let [ni, nj, nk] = dims;
-        let e = [eye_idx[p[0]], eye_idx[p[1]], eye_idx[p[2]]];
+        let e = grid.permute(axis, eye_idx);
         let k_increasing = e[2] < 0.0;
         let front = if k_increasing { 0 } else { nk - 1 };
         let back = if k_increasing { nk - 1 } else { 0 };
@@ -347,6 +357,7 @@ impl Factorization {
             [0.0, -1.0 / focal, 0.5 * h / focal],
             [0.0, 0.0, -1.0],
         ];
+        let p = grid.permutation(axis);
         let dir_row = |a: usize| -> [f64; 3] {
             // `p` is a permutation of 0..3; the `min` shows the compiler the index fits.
             let o = p[a].min(2);
@@ -379,7 +390,7 @@ impl Factorization {
 
         // Opacity correction: the step between slices along the ray through (u, v) is
         // the index vector (du/dk, dv/dk, 1) with du = u − t_i − e_i, in physical units.
-        let sp = [grid.spacing[p[0]], grid.spacing[p[1]], grid.spacing[p[2]]];
+        let sp = grid.permute(axis, grid.spacing);
         let s0 = grid.opacity_unit();
         let ratio_sq = [
             (sp[2] / s0) * (sp[2] / s0),
@@ -402,6 +413,7 @@ impl Factorization {
             .fold(r2_min, f64::max);
         Ok(Factorization {
             axis,
+            layout: grid.layout(),
             dims,
             shear: [0.0; 2],
             translate,
@@ -494,13 +506,14 @@ fn check_camera(camera: &Camera) -> Result<(), Error> {
 }
 
 /// Upper bound of the intermediate image's pixel count over all views of `dims`, for
-/// sizing buffers at compile time: `max over axes (ni + nk + 1)·(nj + nk + 1)`.
+/// sizing buffers at compile time: `max over axes (ni + nk + 1)·(nj + nk + 1)`, the same
+/// for either of a copy's layouts.
 pub const fn max_intermediate_pixels(dims: [usize; 3]) -> usize {
     let axes = [Axis::X, Axis::Y, Axis::Z];
     let mut best = 0;
     let mut a = 0;
     while a < 3 {
-        let d = axes[a].permuted_dims(dims);
+        let d = Layout::CYCLE.permuted_dims(axes[a], dims);
         let n = (d[0] + d[2] + 1) * (d[1] + d[2] + 1);
         if n > best {
             best = n;
@@ -630,7 +643,7 @@ mod tests {
                 let f = Factorization::perspective(&g, &c, fov).unwrap();
                 let p = f.perspective.unwrap();
                 assert!(p.min_scale > 0.0 && p.min_scale <= 1.0);
-                let perm = f.axis.permutation();
+                let perm = f.perm();
                 let [ni, nj, nk] = f.dims;
                 for (i, j, k) in [
                     (0, 0, 0),

@@ -67,10 +67,16 @@ fn hostile_swv_files_get_specific_errors() {
             |e| format_err("magic")(e),
         ),
         (
-            "version 2",
-            |b| put(b, 8, &2u16.to_le_bytes()),
+            "version 3",
+            |b| put(b, 8, &3u16.to_le_bytes()),
             true,
             |e| format_err("version")(e),
+        ),
+        (
+            "a layout bit past the three axes",
+            |b| b[53] |= 0x10,
+            true,
+            |e| format_err("layout")(e),
         ),
         (
             "header byte flipped, checksum stale",

@@ -251,7 +251,7 @@ impl Encoded {
             .iter()
             .map(|&axis| {
                 let (r, v, s) = &self.axes[axis as usize];
-                RleAxis::new(self.grid.dims, axis, r, v, s).expect("encoder output validates")
+                RleAxis::new(&self.grid, axis, r, v, s).expect("encoder output validates")
             })
             .collect();
         RleVolume::new(self.grid, [a[0], a[1], a[2]]).expect("axis copies match")
@@ -570,7 +570,7 @@ proptest! {
         let mut vb = vec![Voxel::default(); voxels];
         let mut r = SliceReader::new(&bytes);
         for axis in Axis::ALL {
-            let [_, _, nk] = axis.permuted_dims(enc.grid.dims);
+            let [_, _, nk] = enc.grid.permuted_dims(axis);
             for k in 0..nk {
                 let e = swv::read_entry(&mut r, &h, axis, k)
                     .map_err(|e| TestCaseError::fail(format!("entry {axis:?} {k}: {e:?}")))?;
@@ -651,7 +651,7 @@ proptest! {
         let grid = Grid::new(d, [1.0; 3]).expect("valid grid");
         let axes = encode_axes(&voxels, &grid, threshold);
         for (axis, (r, v, s)) in Axis::ALL.iter().zip(&axes) {
-            let copy = RleAxis::new(d, *axis, r, v, s)
+            let copy = RleAxis::new(&grid, *axis, r, v, s)
                 .map_err(|e| TestCaseError::fail(format!("{axis:?}: {e:?}")))?;
             let mut back = vec![Voxel { opacity: 7, scalar: 7, normal: 7 }; voxels.len()];
             copy.decode(&mut back).map_err(|e| TestCaseError::fail(format!("{e:?}")))?;
@@ -661,7 +661,7 @@ proptest! {
             }
             let visible = voxels.iter().filter(|x| rle::is_visible(x, threshold)).count();
             prop_assert_eq!(v.len(), visible);
-            let [_, _, nk] = axis.permuted_dims(d);
+            let [_, _, nk] = grid.permuted_dims(*axis);
             for k in 0..nk {
                 let sl = copy.slice(k).expect("slice in range");
                 prop_assert!(sl.validate().is_ok());
@@ -672,7 +672,7 @@ proptest! {
             let i = pick.index(bad.len());
             bad[i] = bad[i].wrapping_add(delta);
             prop_assert!(
-                RleAxis::new(d, *axis, &bad, v, s).is_err(),
+                RleAxis::new(&grid, *axis, &bad, v, s).is_err(),
                 "corrupted run {} accepted on axis {:?}", i, axis
             );
         }

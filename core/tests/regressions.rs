@@ -18,7 +18,7 @@ use shearwarp_core::fixed::ONE;
 use shearwarp_core::io::SliceReader;
 use shearwarp_core::normal;
 use shearwarp_core::render::{self, Frame, Settings};
-use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
+use shearwarp_core::rle::{self, Axis, Layout, RleAxis, ScanIndex};
 use shearwarp_core::shade::{Light, Lighting, ShadeTable};
 use shearwarp_core::source::RleVolume;
 use shearwarp_core::view::{self, Camera};
@@ -132,7 +132,7 @@ fn axes<'a>(grid: &Grid, store: &'a [(Vec<u8>, Vec<Voxel>, Vec<ScanIndex>)]) -> 
         .iter()
         .map(|&a| {
             let (r, v, s) = &store[a as usize];
-            RleAxis::new(grid.dims, a, r, v, s).unwrap()
+            RleAxis::new(grid, a, r, v, s).unwrap()
         })
         .collect()
 }
@@ -212,11 +212,14 @@ fn depth_cue_keeps_colour_within_alpha() {
 /// The squares now saturate, and the coefficient they multiply is zero there anyway.
 #[test]
 fn perspective_gain_survives_a_far_paraboloid_centre() {
+    // The cycle layout, as the fuzzer's version 1 file has it (`Grid::new` would run
+    // the y copy's scanlines along x, and the far centre would lie on the other axis).
     let grid = Grid::new(
         [3, 1, 2],
         [3.645561009778199e-304, 1.8227805065666987e-304, 2.0],
     )
-    .unwrap();
+    .unwrap()
+    .with_layout(Layout::CYCLE);
     let store = uniform_axes(&grid, 200, 0.5);
     let ax = axes(&grid, &store);
     let mut vol = RleVolume::new(grid, [ax[0], ax[1], ax[2]]).unwrap();

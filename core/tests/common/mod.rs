@@ -48,7 +48,7 @@ impl Encoded {
             .iter()
             .map(|&axis| {
                 let (r, v, s) = &self.axes[axis as usize];
-                RleAxis::new(self.grid.dims, axis, r, v, s).unwrap()
+                RleAxis::new(&self.grid, axis, r, v, s).unwrap()
             })
             .collect();
         RleVolume::new(self.grid, [a[0], a[1], a[2]]).unwrap()

@@ -4,6 +4,7 @@
 //! which cannot depend on each other, so that both repair files the same way.
 
 use shearwarp_core::io::Crc32;
+use shearwarp_core::rle::{Axis, Layout};
 use shearwarp_core::swv::{ENTRY_LEN, HEADER_LEN, TABLES_START};
 
 fn u32_at(b: &[u8], o: usize) -> Option<u32> {
@@ -32,14 +33,23 @@ pub fn fix_checksums(b: &mut [u8]) {
         let n = dims[0] + dims[1] + dims[2];
         let tables_end = TABLES_START + ENTRY_LEN * n;
         if tables_end <= b.len() {
+            // The file's layout: version 1 files (and unknown bits) as the cycle.
+            let layout = match b.get(8..10) {
+                Some([1, 0]) => Layout::CYCLE,
+                _ => b
+                    .get(53)
+                    .and_then(|&l| Layout::from_bits(l))
+                    .unwrap_or(Layout::CYCLE),
+            };
             let nj_of = |e: usize| {
-                if e < dims[0] {
-                    dims[2]
+                let axis = if e < dims[0] {
+                    Axis::X
                 } else if e < dims[0] + dims[1] {
-                    dims[0]
+                    Axis::Y
                 } else {
-                    dims[1]
-                }
+                    Axis::Z
+                };
+                layout.permuted_dims(axis, dims)[1]
             };
             for e in 0..n {
                 let o = entry_at(e);

@@ -258,7 +258,7 @@ mod tests {
             .iter()
             .map(|&a| {
                 let (r, v, s) = &store[a as usize];
-                RleAxis::new(dims, a, r, v, s).unwrap()
+                RleAxis::new(&grid, a, r, v, s).unwrap()
             })
             .collect();
         let color = [[0u16; 3]; 256];

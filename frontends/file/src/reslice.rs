@@ -1,16 +1,16 @@
 //! Run-length encoding without a dense classified copy of the volume.
 //!
 //! The z copy is encoded straight from the classifier, a few slices at a time. The x and
-//! y copies are then built from the copies already made: in the cycle of axes
-//! z → x → y, each copy's permuted axes `(i, j, k)` become the next one's `(k, i, j)`, so
-//! the next copy is a re-slicing of the visible voxels of this one. The dense route
+//! y copies are then re-sliced from it: x and y are the axes its scanlines and rows run
+//! along, so each of their copies is a re-slicing of the visible voxels of the z copy
+//! ([`reslice`]), in whichever layout the grid has ([`shearwarp_core::rle::Layout`]). The dense route
 //! (classify everything, then transpose it slab by slab for x and for y) wrote a 4-byte
 //! record for every voxel and read all of them three more times; this route touches the
 //! transparent ones only while classifying, and a typical volume is mostly transparent.
 //! The result is the same, byte for byte (tested against [`rle::encode`]).
 
 use crate::bigbuf;
-use crate::scene::AxisArrays;
+use crate::scene::{transpose, AxisArrays, Strided};
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::Error;
@@ -67,13 +67,16 @@ fn encode_z_part(c: &Classifier<'_>, zs: core::ops::Range<usize>) -> Result<Axis
     let plane = nx * ny;
     // Per slab: its classified voxels, and the encoder's worst case for them.
     let mut dense = vec![Voxel::default(); SLAB * plane];
-    let mut runs = vec![0u8; SLAB * ny * (nx + 2)];
+    let mut runs = vec![0u8; SLAB * (nx * ny + 2 * nx.max(ny))];
     let mut voxels = vec![Voxel::default(); SLAB * plane];
-    let mut scans = vec![ScanIndex::default(); SLAB * ny + 1];
+    let mut scans = vec![ScanIndex::default(); SLAB * nx.max(ny) + 1];
+    // The z copy's scanlines run along y when the layout says so.
+    let across = c.grid.permutation(Axis::Z)[0] == 1;
+    let mut flipped = vec![Voxel::default(); if across { plane } else { 0 }];
     let mut all = (
         Vec::new(),
         Vec::new(),
-        Vec::with_capacity(ny * zs.len() + 1),
+        Vec::with_capacity(nx.max(ny) * zs.len() + 1),
     );
     all.2.push(ScanIndex::default());
     for z0 in zs.clone().step_by(SLAB) {
@@ -81,12 +84,29 @@ fn encode_z_part(c: &Classifier<'_>, zs: core::ops::Range<usize>) -> Result<Axis
         let d = &mut dense[..(z1 - z0) * plane];
         let (o, g, t) = (c.opacity_table, c.gradient_table, Some(c.threshold));
         classify::classify_slices(c.grid, c.scalars, o, g, t, z0..z1, d)?;
-        // The slab as a volume of its own: the encoder reads only its dimensions.
-        let slab = Grid::new([nx, ny, z1 - z0], c.grid.spacing)?;
+        // The slab as a volume of its own: the encoder reads only its dimensions and
+        // layout.
+        let slab = Grid::new([nx, ny, z1 - z0], c.grid.spacing)?.with_layout(c.grid.layout());
         let (r, v, s) = (&mut runs[..], &mut voxels[..], &mut scans[..]);
         let mut enc = rle::Encoder::new(&slab, Axis::Z, c.threshold, r, v, s)?;
         for slice in d.chunks_exact(plane) {
-            enc.push_slice(slice)?;
+            if across {
+                // Scanlines along y: the slice transposed, y fastest.
+                let (src, dst) = (
+                    Strided {
+                        offset: 0,
+                        stride: nx,
+                    },
+                    Strided {
+                        offset: 0,
+                        stride: ny,
+                    },
+                );
+                transpose(slice, src, &mut flipped, dst, [ny, nx]);
+                enc.push_slice(&flipped)?;
+            } else {
+                enc.push_slice(slice)?;
+            }
         }
         append(&mut all, enc.finish()?.parts())?;
     }
@@ -111,60 +131,99 @@ fn append(all: &mut AxisArrays, part: (&[u8], &[Voxel], &[ScanIndex])) -> Result
     Ok(())
 }
 
-/// The copy along the next axis of the cycle z → x → y → z, built from `src`: voxel
-/// `(i, j, k)` of `src` is voxel `(j, k, i)` of the result, which lies on the result's
-/// scanline `i·nk + k` at position `j`.
+/// `axis`'s copy of the volume, laid out as `grid` says, built from another copy `src`
+/// whose scanlines or rows run along `axis` (any copy for another principal axis does).
+/// A voxel at `(i, j, k)` of `src` lies, in the result, on the scanline and at the
+/// position that are linear in `(i, j, k)`: each of the result's `(i, j, k)` is one of
+/// `src`'s.
 ///
 /// Three passes over `src`'s visible voxels: count each new scanline's voxels, place
 /// every voxel (and its position) at its scanline's next free slot, then write each new
-/// scanline's runs from its positions. Walking `src` in storage order, the placing pass
-/// writes to `ni` scanlines at a time (one per column of the source slice), each slot
-/// right after the last one written there, so its writes mostly stay in the cache. The
-/// counters are kept by source slice for the same reason: in the new copy's scanline
-/// order a source slice's counters lay a whole new slice apart (nested spheres 256³:
-/// 156–169 → 115–119 ms for the encoding).
-pub fn next_axis(src: &RleAxis<'_>) -> Result<AxisArrays, Error> {
-    let [ni, nj, nk] = src.axis().permuted_dims(src.dims());
-    let (_, src_voxels, _) = src.parts();
-    let lines = ni * nk;
-    // The positions are j < nj ≤ MAX_DIM, which fits 16 bits.
-    if nj > u16::MAX as usize + 1 {
+/// scanline's runs from its positions. `src` is walked in storage order (`k`, then `j`,
+/// then `i`), so with any two of its coordinates fixed the third only grows: each new
+/// scanline receives its voxels in the order of their positions.
+pub fn reslice(src: &RleAxis<'_>, grid: &Grid, axis: Axis) -> Result<AxisArrays, Error> {
+    let (ps, pt) = (src.permutation(), grid.permutation(axis));
+    let [ni, nj, nk] = grid.permuted_dims(axis);
+    if src.dims() != grid.dims || ps[2] == pt[2] {
+        return Err(Error::BadParameter {
+            reason: "a copy is re-sliced from another axis's copy of the same volume",
+        });
+    }
+    // The positions are < ni ≤ MAX_DIM, which fits 16 bits.
+    if ni > u16::MAX as usize + 1 {
         return Err(Error::BadDimensions {
             reason: "volume side too long to re-slice",
         });
     }
-    // Pass 1: voxels per new scanline. Counters are kept source slice by source slice
-    // (`k·ni + i`), so a source slice's counters lie together.
+    // `src`'s coordinate (0 = i, 1 = j, 2 = k) that becomes the result's i, j and k.
+    let role = pt.map(|a| ps.iter().position(|&b| b == a).unwrap_or(0));
+    let n = src.permuted_dims();
+    // The counters of the new scanlines are kept in `src`'s order (the two coordinates
+    // that name a new scanline, the later of them in `src`'s storage order first), so
+    // that walking `src` in storage order touches them in order, and a source slice's
+    // counters lie together (nested spheres 256³: 156–169 → 115–119 ms for the
+    // encoding than in the new copy's order).
+    let (hi, lo) = (role[1].max(role[2]), role[1].min(role[2]));
+    let mut counter_step = [0; 3];
+    counter_step[hi] = n[lo];
+    counter_step[lo] = 1;
+    let mut pos_step = [0; 3];
+    pos_step[role[0]] = 1;
+    let at = |c: [usize; 3], step: [usize; 3]| c[0] * step[0] + c[1] * step[1] + c[2] * step[2];
+    let (_, src_voxels, _) = src.parts();
+    let lines = nj * nk;
+    // Pass 1: voxels per new scanline.
     let mut count = vec![0u32; lines];
-    visit(src, |i, _, k, run| {
-        for c in &mut count[k * ni + i..][..run.len()] {
-            *c += 1;
+    // `i` is never the later of the two coordinates, so a run's voxels either all go to
+    // one new scanline (`i` is the new position) or to consecutive counters.
+    let along = counter_step[0] == 0;
+    visit(src, |i, j, k, run| {
+        let first = at([i, j, k], counter_step);
+        if along {
+            count[first] += run.len() as u32;
+        } else {
+            for c in &mut count[first..][..run.len()] {
+                *c += 1;
+            }
         }
     });
-    // Each new scanline's first slot, in the new copy's order (`i·nk + k`).
+    // Each new scanline's first slot, in the new copy's order (`k'·nj + j'`); the
+    // counters become the next free slot of their scanline.
     let mut start = vec![0u32; lines + 1];
-    for i in 0..ni {
-        for k in 0..nk {
-            let s = i * nk + k;
-            start[s + 1] = start[s] + count[k * ni + i];
+    let mut next = count;
+    for kk in 0..nk {
+        for jj in 0..nj {
+            let s = kk * nj + jj;
+            let mut c = [0; 3];
+            (c[role[2]], c[role[1]]) = (kk, jj);
+            let counter = &mut next[at(c, counter_step)];
+            start[s + 1] = start[s] + *counter;
+            *counter = start[s];
         }
     }
     // Pass 2: every voxel and its position into its scanline's next slot.
     let total = src_voxels.len();
     let mut voxels = bigbuf::filled(total, Voxel::default());
     let mut pos = bigbuf::filled(total, 0u16);
-    let mut next = count;
-    for i in 0..ni {
-        for k in 0..nk {
-            next[k * ni + i] = start[i * nk + k];
-        }
-    }
     visit(src, |i, j, k, run| {
-        for (s, v) in next[k * ni + i..][..run.len()].iter_mut().zip(run) {
-            let at = *s as usize;
-            voxels[at] = *v;
-            pos[at] = j as u16;
-            *s += 1;
+        let (first, p0) = (at([i, j, k], counter_step), at([i, j, k], pos_step));
+        if along {
+            // The run, whole, at positions p0...
+            let slot = next[first] as usize;
+            voxels[slot..slot + run.len()].copy_from_slice(run);
+            for (t, p) in pos[slot..slot + run.len()].iter_mut().enumerate() {
+                *p = (p0 + t) as u16;
+            }
+            next[first] += run.len() as u32;
+        } else {
+            // Each voxel at position p0 of its own new scanline.
+            for (s, v) in next[first..][..run.len()].iter_mut().zip(run) {
+                let slot = *s as usize;
+                voxels[slot] = *v;
+                pos[slot] = p0 as u16;
+                *s += 1;
+            }
         }
     });
     // Pass 3: runs, scanline by scanline.
@@ -177,7 +236,7 @@ pub fn next_axis(src: &RleAxis<'_>) -> Result<AxisArrays, Error> {
         });
         scanline_runs(
             &pos[start[s] as usize..start[s + 1] as usize],
-            nj,
+            ni,
             &mut runs,
         );
     }
@@ -191,7 +250,7 @@ pub fn next_axis(src: &RleAxis<'_>) -> Result<AxisArrays, Error> {
 /// Calls `f(i, j, k, voxels)` for every visible run of `src`, in storage order: the run
 /// `voxels` starts at `(i, j, k)` and runs along `i`.
 fn visit(src: &RleAxis<'_>, mut f: impl FnMut(usize, usize, usize, &[Voxel])) {
-    let [_, nj, nk] = src.axis().permuted_dims(src.dims());
+    let [_, nj, nk] = src.permuted_dims();
     for (k, slice) in (0..nk).map_while(|k| src.slice(k)).enumerate() {
         for j in 0..nj {
             slice.for_each_run(j, |i, run| f(i, j, k, run));
@@ -224,15 +283,23 @@ fn count32(n: usize) -> Result<u32, Error> {
 /// [`Axis`]).
 pub fn encode_all(c: &Classifier<'_>, threads: usize) -> Result<[AxisArrays; 3], Error> {
     let z = encode_z(c, threads)?;
-    let dims = c.grid.dims;
-    let x = next_axis(&RleAxis::new(dims, Axis::Z, &z.0, &z.1, &z.2)?)?;
-    let y = next_axis(&RleAxis::new(dims, Axis::X, &x.0, &x.1, &x.2)?)?;
+    let x = reslice(
+        &RleAxis::new(c.grid, Axis::Z, &z.0, &z.1, &z.2)?,
+        c.grid,
+        Axis::X,
+    )?;
+    let y = reslice(
+        &RleAxis::new(c.grid, Axis::X, &x.0, &x.1, &x.2)?,
+        c.grid,
+        Axis::Y,
+    )?;
     Ok([x, y, z])
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shearwarp_core::rle::Layout;
 
     /// The copies `rle::encode` makes of the dense classified volume.
     fn dense_route(c: &Classifier<'_>) -> [AxisArrays; 3] {
@@ -313,17 +380,33 @@ mod tests {
                     gradient_table,
                     threshold,
                 };
-                let want = dense_route(&c);
-                for threads in [1, 2, 3] {
-                    let got = encode_all(&c, threads).unwrap();
-                    for a in 0..3 {
-                        assert!(got[a] == want[a], "{dims:?} axis {a} threads {threads}");
+                for bits in 0..8 {
+                    let g = grid.with_layout(Layout::from_bits(bits).unwrap());
+                    let c = Classifier { grid: &g, ..c };
+                    let want = dense_route(&c);
+                    for threads in [1, 2, 3] {
+                        let got = encode_all(&c, threads).unwrap();
+                        for a in 0..3 {
+                            assert!(
+                                got[a] == want[a],
+                                "{dims:?} axis {a} layout {bits} threads {threads}"
+                            );
+                        }
                     }
                 }
-                // The cycle closes: the z copy re-sliced from the y copy.
-                let y = &want[Axis::Y as usize];
-                let from_y = next_axis(&RleAxis::new(dims, Axis::Y, &y.0, &y.1, &y.2).unwrap());
-                assert!(from_y.unwrap() == want[Axis::Z as usize], "{dims:?} y to z");
+                // Every copy from every other one, in any layout of either.
+                for (from, to) in [(1, 2), (0, 2), (1, 0), (2, 1)] {
+                    let (f, t) = (Axis::ALL[from], Axis::ALL[to]);
+                    for bits in 0..8 {
+                        let g = grid.with_layout(Layout::from_bits(bits).unwrap());
+                        let c = Classifier { grid: &g, ..c };
+                        let want = dense_route(&c);
+                        let a = &want[from];
+                        let src = RleAxis::new(&g, f, &a.0, &a.1, &a.2).unwrap();
+                        let got = reslice(&src, &g, t).unwrap();
+                        assert!(got == want[to], "{dims:?} {f:?} to {t:?}, layout {bits}");
+                    }
+                }
             }
         }
     }

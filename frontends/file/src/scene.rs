@@ -116,7 +116,7 @@ pub fn encode_axis(
     threshold: u8,
     visible: usize,
 ) -> Result<AxisArrays, Error> {
-    let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+    let [ni, nj, nk] = grid.permuted_dims(axis);
     let mut runs = bigbuf::zeroed_bytes(nj * nk * (ni + 2));
     let mut voxels = bigbuf::filled(visible, Voxel::default());
     let mut scans = bigbuf::filled(nj * nk + 1, ScanIndex::default());
@@ -157,7 +157,7 @@ pub fn encode_slabs(
     scans: &mut [ScanIndex],
 ) -> Result<usize, Error> {
     let [nx, ny, nz] = grid.dims;
-    let [ni, nj, nk] = axis.permuted_dims(grid.dims);
+    let [ni, nj, nk] = grid.permuted_dims(axis);
     if dense.len() < grid.voxel_count() {
         return Err(Error::BufferTooSmall {
             what: "dense voxels",
@@ -167,49 +167,60 @@ pub fn encode_slabs(
     }
     let mut enc = rle::Encoder::new(grid, axis, threshold, runs, voxels, scans)?;
     let plane = ni * nj;
-    if axis == Axis::Z {
+    // The object axis the copy's scanlines run along.
+    let along = grid.permutation(axis)[0];
+    if (axis, along) == (Axis::Z, 0) {
         for k in 0..nk {
             enc.push_slice(&dense[k * plane..(k + 1) * plane])?;
         }
     } else {
         // An x slice uses one voxel of each volume row, so [`X_SLAB`] of them are
         // gathered together, a cache line further apart than their size (so the lines a
-        // tile writes do not share a cache set). A y slice is gathered from whole rows
-        // of the volume, one slice at a time, which stays in the cache while it is
+        // tile writes do not share a cache set). A y or z slice is gathered from whole
+        // rows of the volume, one slice at a time, which stays in the cache while it is
         // written.
         let (group, pitch) = match axis {
             Axis::X => (X_SLAB, plane + LINE),
             _ => (1, plane),
         };
         let mut slab = bigbuf::filled(group * pitch, Voxel::default());
+        let at = |offset, stride| Strided { offset, stride };
         for k0 in (0..nk).step_by(group) {
             let g = group.min(nk - k0);
-            if axis == Axis::X {
+            match (axis, along) {
                 // Slice x = k0 + s holds (i, j) = (y, z): per z, the rows y of the
                 // volume become columns of the slices.
-                for z in 0..nz {
-                    let src = Strided {
-                        offset: z * ny * nx + k0,
-                        stride: nx,
-                    };
-                    let dst = Strided {
-                        offset: z * ny,
-                        stride: pitch,
-                    };
-                    transpose(dense, src, &mut slab, dst, [ny, g]);
+                (Axis::X, 1) => {
+                    for z in 0..nz {
+                        let (src, dst) = (at(z * ny * nx + k0, nx), at(z * ny, pitch));
+                        transpose(dense, src, &mut slab, dst, [ny, g]);
+                    }
                 }
-            } else {
+                // (i, j) = (z, y): per y, the rows z.
+                (Axis::X, _) => {
+                    for y in 0..ny {
+                        let (src, dst) = (at(y * nx + k0, nx * ny), at(y * nz, pitch));
+                        transpose(dense, src, &mut slab, dst, [nz, g]);
+                    }
+                }
                 // Slice y = k0 holds (i, j) = (z, x): the rows z of the volume become
                 // its columns.
-                let src = Strided {
-                    offset: k0 * nx,
-                    stride: nx * ny,
-                };
-                let dst = Strided {
-                    offset: 0,
-                    stride: nz,
-                };
-                transpose(dense, src, &mut slab, dst, [nz, nx]);
+                (Axis::Y, 2) => {
+                    let (src, dst) = (at(k0 * nx, nx * ny), at(0, nz));
+                    transpose(dense, src, &mut slab, dst, [nz, nx]);
+                }
+                // (i, j) = (x, z): the volume's rows, one per z.
+                (Axis::Y, _) => {
+                    for (z, row) in slab.chunks_exact_mut(nx).take(nz).enumerate() {
+                        let from = z * nx * ny + k0 * nx;
+                        row.copy_from_slice(&dense[from..from + nx]);
+                    }
+                }
+                // Slice z = k0 with (i, j) = (y, x): the slice transposed.
+                (Axis::Z, _) => {
+                    let (src, dst) = (at(k0 * nx * ny, nx), at(0, ny));
+                    transpose(dense, src, &mut slab, dst, [ny, nx]);
+                }
             }
             for s in 0..g {
                 enc.push_slice(&slab[s * pitch..s * pitch + plane])?;
@@ -221,14 +232,20 @@ pub fn encode_slabs(
 
 /// A matrix inside a flat array: element `(r, c)` at `offset + r·stride + c`.
 #[derive(Clone, Copy)]
-struct Strided {
-    offset: usize,
-    stride: usize,
+pub(crate) struct Strided {
+    pub offset: usize,
+    pub stride: usize,
 }
 
 /// Writes the `rows × cols` matrix `src` transposed into `dst` (`dst(c, r) = src(r,
 /// c)`), in 16×16 tiles so that both sides touch whole cache lines.
-fn transpose(src: &[Voxel], s: Strided, dst: &mut [Voxel], d: Strided, [rows, cols]: [usize; 2]) {
+pub(crate) fn transpose(
+    src: &[Voxel],
+    s: Strided,
+    dst: &mut [Voxel],
+    d: Strided,
+    [rows, cols]: [usize; 2],
+) {
     const T: usize = 16;
     let mut tile = [[Voxel::default(); T]; T];
     for r0 in (0..rows).step_by(T) {
@@ -312,7 +329,7 @@ impl Encoded {
         let axis = |a: Axis| {
             let i = a as usize;
             RleAxis::new(
-                self.grid.dims,
+                &self.grid,
                 a,
                 &self.runs[i],
                 &self.voxels[i],
@@ -387,7 +404,9 @@ mod tests {
                 }
             })
             .collect();
-        for axis in Axis::ALL {
+        // Every axis in both of its layouts.
+        for (axis, bits) in Axis::ALL.into_iter().flat_map(|a| [(a, 0), (a, 7)]) {
+            let grid = grid.with_layout(rle::Layout::from_bits(bits).unwrap());
             let sz = rle::measure(&dense, &grid, axis, 40).unwrap();
             let mut a = (
                 vec![0u8; sz.runs],
@@ -397,8 +416,8 @@ mod tests {
             let mut b = a.clone();
             rle::encode(&dense, &grid, axis, 40, &mut a.0, &mut a.1, &mut a.2).unwrap();
             let used = encode_slabs(&dense, &grid, axis, 40, &mut b.0, &mut b.1, &mut b.2);
-            assert_eq!(used.unwrap(), sz.runs, "{axis:?}");
-            assert!(a == b, "{axis:?}");
+            assert_eq!(used.unwrap(), sz.runs, "{axis:?} {bits}");
+            assert!(a == b, "{axis:?} {bits}");
         }
     }
 }

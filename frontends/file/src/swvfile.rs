@@ -103,13 +103,13 @@ pub fn read_swv(path: &std::path::Path) -> Result<(Encoded, swv::Look), SwvError
     let mut scans: [Vec<ScanIndex>; 3] = Default::default();
     for axis in Axis::ALL {
         let a = axis as usize;
-        let [_, nj, nk] = axis.permuted_dims(grid.dims);
+        let [_, nj, nk] = grid.permuted_dims(axis);
         scans[a].push(ScanIndex::default());
         for k in 0..nk {
             let e = swv::read_entry(&mut r, &header, axis, k).map_err(err)?;
             // Bound allocations by what one slice can hold, and by the file's length,
             // before trusting the counts.
-            let [ni, _, _] = axis.permuted_dims(grid.dims);
+            let [ni, _, _] = grid.permuted_dims(axis);
             let record = 8 * (nj as u64 + 1) + e.runs as u64 + 4 * e.voxels as u64;
             if e.runs as usize > nj * (ni + 2)
                 || e.voxels as usize > ni * nj

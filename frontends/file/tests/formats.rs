@@ -215,7 +215,16 @@ fn dicom_series_matches_raw_conversion() {
     // One file of the series loads the whole series.
     let (one, _) = load_volume_meta(&dir.join("brain_007.dcm"), Prefer::U8).unwrap();
     assert!(one.voxels == v.voxels);
-    assert!(render(&v) == render(&raw));
+    // The raw conversion's JSON keeps the slice spacing to single precision (7.000524
+    // against the series' 7.0005237), which may move a sample by a rounding step: the
+    // images agree to one level in any channel.
+    let (a, b) = (render(&v), render(&raw));
+    let worst = a
+        .iter()
+        .zip(&b)
+        .flat_map(|(p, q)| p.iter().zip(q).map(|(x, y)| x.abs_diff(*y)))
+        .max();
+    assert!(worst <= Some(1), "max channel error {worst:?}");
 }
 
 fn shearwarp(args: &[&str]) -> (i32, String, String) {

@@ -235,7 +235,7 @@ impl LevelRle {
             let (_, r) = self.axes[a as usize].as_ref().ok_or(Error::Source {
                 reason: "an axis copy has not been encoded yet",
             })?;
-            RleAxis::new(self.grid.dims, a, &r.runs, &r.voxels, &r.scans)
+            RleAxis::new(&self.grid, a, &r.runs, &r.voxels, &r.scans)
         };
         RleVolume::new(self.grid, [axis(Axis::X)?, axis(Axis::Y)?, axis(Axis::Z)?])
     }

@@ -160,7 +160,7 @@ fn run() -> Result<(), Error> {
         some(&mut vz),
         some(&mut sz),
     )?;
-    let z = RleAxis::new(grid.dims, Axis::Z, z.parts().0, z.parts().1, z.parts().2)?;
+    let z = RleAxis::new(&grid, Axis::Z, z.parts().0, z.parts().1, z.parts().2)?;
     black_box(rle::measure(dense, &grid, Axis::Y, th)?);
     let mut decoded = [Voxel::default(); N];
     y.decode(some(&mut decoded))?;
