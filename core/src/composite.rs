@@ -438,8 +438,17 @@ fn composite_rows(
     }
     // A half-open range: an inclusive one carries an exhaustion flag through every step
     // (the hires brain, callgrind: 0.6 % fewer instructions a frame; 0.8 % less time).
+    // On x86-64 rows jt + 3 are taken in order, each from where the one before ended
+    // (the hires brain, callgrind: 1.2 % fewer instructions a frame than a lookup of
+    // each; alternating, 0.5–1 % less time). The Cortex-M3 frame took 1.2 % more
+    // instructions so: there each is looked up.
+    #[cfg(target_arch = "x86_64")]
+    let mut rows_ahead = slice.scanlines_from(jt_lo + 3);
     for jt in jt_lo..jt_hi + 1 {
         let next = scans[(jt + 1).rem_euclid(4) as usize];
+        #[cfg(target_arch = "x86_64")]
+        let ahead = rows_ahead.next_row();
+        #[cfg(not(target_arch = "x86_64"))]
         let ahead = row_of(jt + 3);
         scans[(jt + 3).rem_euclid(4) as usize] = ahead;
         let r = if skip_opaque_voxels {
