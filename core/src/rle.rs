@@ -57,7 +57,8 @@ impl Axis {
 /// opaque pixels, its spans walked, its pixels' runs found), little per voxel, so a
 /// slice of fewer, longer scanlines is cheaper: the hires Colin27 brain (301×370×316)
 /// seen along z is 370 rows of 301 voxels in the cycle, 301 rows of 370 across it. The
-/// image is the same: the intermediate image is transposed and the warp maps it back.
+/// image is the same to a level: the intermediate image is transposed and the warp maps
+/// it back (its coordinates may round differently).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Layout(u8);
 
@@ -1078,6 +1079,38 @@ mod tests {
         for j in 1..6 {
             assert_eq!(rows.next_row(), (&[][..], &[][..]), "walked row {j}");
         }
+    }
+
+    #[test]
+    fn layouts_keep_the_principal_axis_last_and_pick_the_longer_side() {
+        for bits in 0..8 {
+            let l = Layout::from_bits(bits).unwrap();
+            assert_eq!(l.bits(), bits);
+            for axis in Axis::ALL {
+                let p = l.permutation(axis);
+                assert_eq!(p[2], axis as usize, "layout {bits}");
+                assert_eq!(p[0] + p[1] + p[2], 3, "layout {bits}: {p:?}");
+                assert_ne!(p[0], p[1]);
+                let swapped = bits >> axis as u8 & 1 != 0;
+                let c = axis.cycle();
+                assert_eq!(p, if swapped { [c[1], c[0], c[2]] } else { c });
+                assert_eq!(
+                    l.permuted_dims(axis, [10, 20, 30]),
+                    p.map(|a| [10, 20, 30][a])
+                );
+            }
+        }
+        assert_eq!(Layout::from_bits(8), None);
+        for dims in [[301, 370, 316], [181, 217, 181], [5, 5, 5], [1, 9, 4]] {
+            let l = Layout::fewest_rows(dims);
+            for axis in Axis::ALL {
+                let [ni, nj, _] = l.permuted_dims(axis, dims);
+                assert!(ni >= nj, "{dims:?} {axis:?}: {ni} × {nj}");
+            }
+        }
+        // Ties keep the cycle; the hires brain's z copy runs along y.
+        assert_eq!(Layout::fewest_rows([5, 5, 5]), Layout::CYCLE);
+        assert_eq!(Layout::fewest_rows([301, 370, 316]).bits(), 0b100);
     }
 
     #[test]

@@ -1,9 +1,9 @@
 //! Run-length encoding without a dense classified copy of the volume.
 //!
-//! The z copy is encoded straight from the classifier, a few slices at a time. The x and
-//! y copies are then re-sliced from it: x and y are the axes its scanlines and rows run
-//! along, so each of their copies is a re-slicing of the visible voxels of the z copy
-//! ([`reslice`]), in whichever layout the grid has ([`shearwarp_core::rle::Layout`]). The dense route
+//! The z copy is encoded straight from the classifier, a few slices at a time. The x copy
+//! is then re-sliced from the visible voxels of the z copy, whose scanlines or rows run
+//! along x, and the y copy likewise from the x copy ([`reslice`]), each in whichever
+//! layout the grid has ([`shearwarp_core::rle::Layout`]). The dense route
 //! (classify everything, then transpose it slab by slab for x and for y) wrote a 4-byte
 //! record for every voxel and read all of them three more times; this route touches the
 //! transparent ones only while classifying, and a typical volume is mostly transparent.
@@ -162,8 +162,8 @@ pub fn reslice(src: &RleAxis<'_>, grid: &Grid, axis: Axis) -> Result<AxisArrays,
     // The counters of the new scanlines are kept in `src`'s order (the two coordinates
     // that name a new scanline, the later of them in `src`'s storage order first), so
     // that walking `src` in storage order touches them in order, and a source slice's
-    // counters lie together (nested spheres 256³: 156–169 → 115–119 ms for the
-    // encoding than in the new copy's order).
+    // counters lie together (nested spheres 256³: 115–119 ms for the encoding, 156–169
+    // with the counters in the new copy's order).
     let (hi, lo) = (role[1].max(role[2]), role[1].min(role[2]));
     let mut counter_step = [0; 3];
     counter_step[hi] = n[lo];
