@@ -679,14 +679,13 @@ mod tests {
         tables: &SliceTables<'_>,
         img: &mut Intermediate<'_>,
     ) {
-        let p = view.perm();
         let [ni, nj, nk] = view.dims;
-        let stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
+        let [si, sj, sk] = view.permute([1, grid.dims[0], grid.dims[0] * grid.dims[1]]);
         let get = |i: i64, j: i64, k: usize| -> Rgba {
             if i < 0 || j < 0 || i >= ni as i64 || j >= nj as i64 {
                 return [0; 4];
             }
-            let v = dense[i as usize * stride[p[0]] + j as usize * stride[p[1]] + k * stride[p[2]]];
+            let v = dense[i as usize * si + j as usize * sj + k * sk];
             if v.opacity <= 3 {
                 return [0; 4];
             }
@@ -784,6 +783,40 @@ mod tests {
         }
     }
 
+    /// `frame` of `vol` (a [`view48`] camera's) rendered with buffers for any view of it,
+    /// and for shadows when `shade0` (the first light's table) is given.
+    fn render48(
+        vol: &mut RleVolume<'_>,
+        frame: &Frame,
+        shade: &mut ShadeTable,
+        shade0: Option<&mut ShadeTable>,
+    ) -> Vec<[u8; 4]> {
+        let pix = 4 * view::max_intermediate_pixels(vol.grid().dims);
+        let (mut pixels, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
+        let mut rows = vec![[0u16; 4]; 1 << 12];
+        let mut out_row = [[0u8; 4]; 48];
+        let (mut alpha, mut srows) = (vec![0u16; pix], vec![0u16; 1 << 12]);
+        let mut ws = Workspace {
+            pixels: &mut pixels,
+            links: &mut links,
+            rows: &mut rows,
+            out_row: &mut out_row,
+            shade,
+            shadow: shade0.map(|shade0| ShadowWorkspace {
+                alpha: &mut alpha,
+                rows: &mut srows,
+                shade0,
+            }),
+        };
+        let mut image = vec![[0u8; 4]; 48 * 40];
+        let mut sink = FrameBuffer {
+            width: 48,
+            pixels: &mut image,
+        };
+        render_frame(vol, frame, &mut ws, &mut sink).unwrap();
+        image
+    }
+
     /// Unshaded compositing with `color`, early ray termination at 0.95.
     fn unlit(color: &ColorTable) -> Settings<'_> {
         Settings {
@@ -844,27 +877,8 @@ mod tests {
                     shadows: false,
                 };
                 let view = Factorization::new(&grid, &cam).unwrap();
-                let pix = view::max_intermediate_pixels(grid.dims);
-                let mut pixels = vec![[0u16; 4]; pix];
-                let mut links = vec![0; pix];
-                let mut rows = vec![[0u16; 4]; 64];
-                let mut out_row = [[0u8; 4]; 48];
-                let mut frame = vec![[0u8; 4]; 48 * 40];
-                {
-                    let mut ws = Workspace {
-                        pixels: &mut pixels,
-                        links: &mut links,
-                        rows: &mut rows,
-                        out_row: &mut out_row,
-                        shade: &mut shade,
-                        shadow: None,
-                    };
-                    let mut sink = FrameBuffer {
-                        width: 48,
-                        pixels: &mut frame,
-                    };
-                    render(&mut vol, &cam, &settings, &mut ws, &mut sink).unwrap();
-                }
+                let whole = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
+                let frame = render48(&mut vol, &whole, &mut shade, None);
                 // Dense path with the same tables.
                 let opacity = OpacityTable::from(classify::opacity_correction(view.step_ratio));
                 let lanes = classify::color_lanes(&color);
@@ -892,6 +906,7 @@ mod tests {
                     width: 48,
                     pixels: &mut frame2,
                 };
+                let mut out_row = [[0u8; 4]; 48];
                 warp::warp(img.pixels(), &view, &mut out_row, &mut sink2).unwrap();
                 assert_eq!(frame, frame2, "view {rx} {ry} ert {ert}");
                 assert!(
@@ -946,12 +961,7 @@ mod tests {
             let store = encode_all(&dense, &grid);
             let mut vol = rle_volume(grid, &store);
             let (settings, s, fov) = &ways[way];
-            let pix = 4 * view::max_intermediate_pixels(grid.dims);
-            let (mut pixels, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
-            let mut rows = vec![[0u16; 4]; 1 << 12];
-            let mut out_row = [[0u8; 4]; 48];
             let (mut shade, mut shade0) = (ShadeTable::UNSHADED, ShadeTable::UNSHADED);
-            let (mut alpha, mut srows) = (vec![0u16; pix], vec![0u16; 1 << 12]);
             let frame = match fov {
                 Some(fov) => Frame::perspective(&grid, cam, *fov, settings, &mut shade),
                 None if settings.shadows => {
@@ -960,25 +970,8 @@ mod tests {
                 None => Frame::supersampled(&grid, cam, settings, &mut shade, None, *s),
             }
             .unwrap();
-            let mut ws = Workspace {
-                pixels: &mut pixels,
-                links: &mut links,
-                rows: &mut rows,
-                out_row: &mut out_row,
-                shade: &mut shade,
-                shadow: settings.shadows.then_some(ShadowWorkspace {
-                    alpha: &mut alpha,
-                    rows: &mut srows,
-                    shade0: &mut shade0,
-                }),
-            };
-            let mut image = vec![[0u8; 4]; 48 * 40];
-            let mut sink = FrameBuffer {
-                width: 48,
-                pixels: &mut image,
-            };
-            render_frame(&mut vol, &frame, &mut ws, &mut sink).unwrap();
-            image
+            let shade0 = settings.shadows.then_some(&mut shade0);
+            render48(&mut vol, &frame, &mut shade, shade0)
         };
         let mut axes = [false; 3];
         for (rx, ry) in [(20.0, 35.0), (-10.0, 80.0), (75.0, 10.0), (190.0, -20.0)] {

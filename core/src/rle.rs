@@ -152,10 +152,9 @@ const CLEAR: Voxel = Voxel {
 /// Walks the dense volume along the permuted scanlines of `axis`, calling `f(Some(voxel))`
 /// per voxel and `f(None)` at each scanline end.
 fn walk(dense: &[Voxel], grid: &Grid, axis: Axis, mut f: impl FnMut(Option<&Voxel>)) {
-    let p = grid.permutation(axis);
     let [ni, nj, nk] = grid.permuted_dims(axis);
     let stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
-    let (si, sj, sk) = (stride[p[0]], stride[p[1]], stride[p[2]]);
+    let [si, sj, sk] = grid.permute(axis, stride);
     for k in 0..nk {
         for j in 0..nj {
             let base = k * sk + j * sj;
@@ -596,11 +595,9 @@ impl<'a> RleAxis<'a> {
     pub fn decode(&self, out: &mut [Voxel]) -> Result<(), Error> {
         let n = self.dims[0] * self.dims[1] * self.dims[2];
         need("dense voxels", n, out.len())?;
-        let p = self.permutation();
         let [_, nj, nk] = self.permuted_dims();
         let stride = [1, self.dims[0], self.dims[0] * self.dims[1]];
-        // `p` is a permutation of 0..3.
-        let [si, sj, sk] = p.map(|a| stride.get(a).copied().unwrap_or(0));
+        let [si, sj, sk] = self.layout.permute(self.axis, stride);
         for v in out.iter_mut().take(n) {
             *v = Voxel::default();
         }
