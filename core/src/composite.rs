@@ -478,7 +478,22 @@ fn composite_rows(
                 kern.warm(v.get(v.len() - n..).unwrap_or_default());
             }
         }
-        match reach[(jt + 1).rem_euclid(4) as usize] {
+        let next_reach = reach[(jt + 1).rem_euclid(4) as usize];
+        // A hidden row after an empty one, with the other buffer already clear: scanline
+        // jt + n_v + 1 reads nothing, so the row is passed over without clearing,
+        // looking up or compositing anything (the back slices of a head are mostly such
+        // rows; the hires brain, callgrind: 2.4 % fewer instructions a frame; alternating,
+        // one thread, 256²: 1–4 % less time). Not on bare-metal targets, whose small
+        // volumes have few of them (the Cortex-M3 frame: 1.1 % more instructions).
+        if !cfg!(target_os = "none")
+            && next_reach == Reach::Nothing
+            && top.extent().is_none()
+            && bot.extent().is_none()
+        {
+            core::mem::swap(&mut top, &mut bot);
+            continue;
+        }
+        match next_reach {
             Reach::Nothing => bot.clear(),
             Reach::Everything => {
                 bot.fill(next.0, next.1, tables, jt + 1, None, kern, shading);
