@@ -691,6 +691,15 @@ impl<'a> Scanlines<'a> {
     }
 }
 
+/// Where an index entry's offset `x` into an axis's runs or voxels lies in a slice's
+/// arrays that start at `base`; `None` before them. Subtracted with a check rather than
+/// wrapped (and left to `get`): the Cortex-M3 frame takes 34.17 M instructions against
+/// 34.53 M, x86-64 0.15 % more.
+#[inline(always)]
+fn offset(x: u32, base: u32) -> Option<usize> {
+    x.checked_sub(base).map(|d| d as usize)
+}
+
 /// One slice of an encoded axis: `nj` scanlines of `ni` voxels. Offsets in `scans` are
 /// relative to the axis arrays; `base` is subtracted to index this slice's arrays, which
 /// lets a streaming source hold only one slice in memory.
@@ -767,15 +776,12 @@ impl<'a> RleSlice<'a> {
     #[inline(always)]
     fn scanline_checked(&self, j: usize) -> Option<(&'a [u8], &'a [Voxel])> {
         let [a, b] = [*self.scans.get(j)?, *self.scans.get(j.checked_add(1)?)?];
-        // Subtracted with a check rather than wrapped (and left to `get`): the Cortex-M3
-        // frame takes 34.17 M instructions against 34.53 M, x86-64 0.15 % more.
-        let at = |x: u32, base: u32| x.checked_sub(base).map(|d| d as usize);
         let runs = self
             .runs
-            .get(at(a.run, self.base.run)?..at(b.run, self.base.run)?)?;
+            .get(offset(a.run, self.base.run)?..offset(b.run, self.base.run)?)?;
         let voxels = self
             .voxels
-            .get(at(a.voxel, self.base.voxel)?..at(b.voxel, self.base.voxel)?)?;
+            .get(offset(a.voxel, self.base.voxel)?..offset(b.voxel, self.base.voxel)?)?;
         Some((runs, voxels))
     }
 
@@ -786,12 +792,8 @@ impl<'a> RleSlice<'a> {
         let at = usize::try_from(j).ok().filter(|&j| j < self.nj);
         let start = at.and_then(|j| {
             let first = *self.scans.get(j)?;
-            let runs = self
-                .runs
-                .get(first.run.checked_sub(self.base.run)? as usize..)?;
-            let voxels = self
-                .voxels
-                .get(first.voxel.checked_sub(self.base.voxel)? as usize..)?;
+            let runs = self.runs.get(offset(first.run, self.base.run)?..)?;
+            let voxels = self.voxels.get(offset(first.voxel, self.base.voxel)?..)?;
             Some((self.scans.get(j..)?, runs, voxels))
         });
         let (scans, runs, voxels) = start.unwrap_or((&[], &[], &[]));

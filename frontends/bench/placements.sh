@@ -13,7 +13,8 @@
 #
 # usage: frontends/bench/placements.sh [BASE_REV] [PASSES] [PAD...]
 #   BASE_REV  the revision to compare with (default HEAD); the other side is the
-#             working tree, uncommitted changes included
+#             working tree with its uncommitted changes to tracked files (`git stash
+#             create`: new files must be added first)
 #   PASSES    passes over all builds, alternating (default 2)
 #   PAD       padding sizes in bytes (default 0 768 1536 2304)
 # Prints, per build, each pass's one-thread medians at 256² (brainsmall, the head, the
