@@ -178,8 +178,8 @@ pub fn warp_rows(
     }
 }
 
-/// [`ShadeTable::fill`] in the build for `isa` (the x86-64-v3 one for v3 and v4), or
-/// the portable one when this CPU lacks it. Every build fills the same entries.
+/// [`ShadeTable::fill`] in the build for `isa`, or the portable one when this CPU
+/// lacks it. Every build fills the same entries.
 pub fn fill_shade(
     isa: Isa,
     shade: &mut ShadeTable,
@@ -188,9 +188,11 @@ pub fn fill_shade(
 ) -> Result<(), Error> {
     match isa.effective() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `effective` returns only levels whose features this CPU has, and v4
-        // includes v3's.
-        Isa::X86V4 | Isa::X86V3 => unsafe { shade.fill_x86_v3(lighting, rot) },
+        // SAFETY: `effective` returns only levels whose features this CPU has.
+        Isa::X86V4 => unsafe { shade.fill_x86_v4(lighting, rot) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        Isa::X86V3 => unsafe { shade.fill_x86_v3(lighting, rot) },
         _ => shade.fill(lighting, rot),
     }
 }
