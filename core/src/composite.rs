@@ -15,6 +15,7 @@
 //! All arithmetic is Q15 integer. Voxel colours are shaded once per voxel row and slice
 //! into a row buffer (premultiplied RGBA); each row is used by two intermediate scanlines.
 
+mod flat;
 mod kernels;
 mod row;
 mod shading;
@@ -96,6 +97,29 @@ pub struct SliceTables<'a> {
     pub shade0: Option<&'a ShadeTable>,
     /// Perspective views: the per-ray opacity-correction gains.
     pub ray_gain: Option<&'a crate::perspective::RayGain>,
+    /// How flat voxels enter a sample's colour ([`FlatVoxels`]).
+    pub flat_voxels: FlatVoxels,
+}
+
+/// How voxels with an exactly zero gradient (plateaus of the data, shaded as
+/// unoriented: ambient plus full diffuse light) enter a resampled sample's colour.
+///
+/// A ray caster that interpolates gradients and normalises them per sample gives a
+/// sample between a plateau and an edge the edge's direction whole. Shading per voxel
+/// and interpolating colours, as shear-warp does, mixes the plateau's full light into
+/// it instead, which lights up the rims of objects made of plateaus at grazing angles
+/// (segmented or synthetic volumes; scanned data has almost no exact plateaus). See
+/// BENCHMARKS.md for what each costs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FlatVoxels {
+    /// Interpolated like every other voxel: the fastest.
+    #[default]
+    Blended,
+    /// Left out of the colour of a sample that also has voxels with a direction (their
+    /// weighted colour is scaled to the sample's opacity, which is unchanged): the
+    /// per-sample normalisation's result, in parallel projection (perspective views
+    /// blend them).
+    Excluded,
 }
 
 /// The intermediate image, or a band of its scanlines: pixels plus the bitmap of opaque
@@ -251,10 +275,11 @@ impl<'a> Intermediate<'a> {
     }
 }
 
-/// Row-buffer entries the compositor needs for slices `ni` voxels wide (two rows with a
-/// guard entry on each side) in parallel projection.
+/// Row-buffer entries the compositor needs for slices `ni` voxels wide in parallel
+/// projection: two rows with a guard entry on each side, and each row's bits for its
+/// flat voxels ([`flat`]).
 pub const fn row_buffer_len(ni: usize) -> usize {
-    2 * (ni + 2)
+    2 * (ni + 2) + 2 * flat::words(ni)
 }
 
 /// Row-buffer entries [`composite_slice`] needs for `view` (perspective views need a
@@ -523,7 +548,21 @@ fn composite_rows(
                     n: ou.n,
                     w,
                 };
-                composite_span(pixels, opaque, &taps, ua..ub, tables, kern);
+                // Rows with flat voxels (only ever marked in composite mode) go to a
+                // compositor of their own, out of line: the common path stays as it was
+                // without them.
+                if top.has_flat || bot.has_flat {
+                    kern.over_span_flat(FlatSpan {
+                        pixels,
+                        opaque,
+                        taps,
+                        flat: (top.flat, bot.flat),
+                        us: ua..ub,
+                        ert: tables.ert,
+                    });
+                } else {
+                    composite_span(pixels, opaque, &taps, ua..ub, tables, kern);
+                }
             }
         }
         core::mem::swap(&mut top, &mut bot);
@@ -633,7 +672,11 @@ fn composite_slice_supersampled(
                     }
                     let bl = (il + 1) as usize;
                     let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
-                    if composite_pixel(px, top.buf, bot.buf, bl, w, tables) {
+                    let f = match top.has_flat || bot.has_flat {
+                        true => flat::taps(top.flat, bot.flat, bl),
+                        false => 0,
+                    };
+                    if composite_pixel(px, top.buf, bot.buf, bl, w, f, tables) {
                         opaque::mark(opaque, u);
                     }
                 }
@@ -766,8 +809,9 @@ fn supersampled_needs(
     true
 }
 
-/// Resamples and composites one pixel from voxel buffer index `bl` (left) and `bl + 1`;
-/// true if the pixel became opaque (reached the early-ray-termination opacity).
+/// Resamples and composites one pixel from voxel buffer index `bl` (left) and `bl + 1`,
+/// whose taps have flat bits `flat` ([`flat::taps`]); true if the pixel became opaque
+/// (reached the early-ray-termination opacity).
 #[inline(always)]
 fn composite_pixel(
     p: &mut Rgba,
@@ -775,21 +819,17 @@ fn composite_pixel(
     bot: &[Rgba],
     bl: usize,
     w: [u32; 4],
+    flat: u32,
     t: &SliceTables<'_>,
 ) -> bool {
     // Entries past a buffer read as transparent (they are never asked for: the
     // compositors keep `bl + 1` inside the row buffers).
     let at = |r: &[Rgba], i: usize| r.get(i).copied().unwrap_or_default();
-    let (tl, tr, bl_, br) = (at(top, bl), at(top, bl + 1), at(bot, bl), at(bot, bl + 1));
-    let mut s = [0u32; 4];
-    for c in 0..4 {
-        s[c] = (w[0] * tl[c] as u32
-            + w[1] * tr[c] as u32
-            + w[2] * bl_[c] as u32
-            + w[3] * br[c] as u32
-            + (1 << 14))
-            >> 15;
-    }
+    let taps = [at(top, bl), at(top, bl + 1), at(bot, bl), at(bot, bl + 1)];
+    let s = match flat {
+        0 => flat::sample(&taps, w),
+        f => flat::resample(&taps, w, f),
+    };
     match t.mode {
         Mode::Composite => {
             if s[3] != 0 {
@@ -812,7 +852,8 @@ fn composite_pixel(
 
 /// Two shaded voxel rows placed on a scanline: pixel `u` reads buffer entries `u − n` and
 /// `u − n + 1` of both rows with the slice's bilinear weights `w`.
-struct Taps<'r> {
+#[derive(Clone, Copy)]
+pub(crate) struct Taps<'r> {
     top: &'r [Rgba],
     bot: &'r [Rgba],
     n: i32,
@@ -838,7 +879,7 @@ fn composite_span(
     for (u, p) in pixels.iter_mut().enumerate().take(us.end).skip(first) {
         // Buffer index of the left voxel: (u − n − 1) + 1.
         let bl = (u as i64 - taps.n as i64) as usize;
-        composite_pixel(p, taps.top, taps.bot, bl, taps.w, t);
+        composite_pixel(p, taps.top, taps.bot, bl, taps.w, 0, t);
     }
 }
 
@@ -856,6 +897,54 @@ fn over_span(
     ert: u32,
     kern: &impl Kernels,
 ) {
+    over_runs(pixels, opaque, taps, us, ert, kern, |px, top, bot, _| {
+        kern.over_run(px, top, bot, taps.w)
+    })
+}
+
+/// A span of a scanline whose rows hold flat voxels, with bits `flat` (top row, bottom
+/// row): [`Kernels::over_span_flat`].
+pub(crate) struct FlatSpan<'a, 'r> {
+    pixels: &'a mut [Rgba],
+    opaque: &'a mut [opaque::Word],
+    taps: Taps<'r>,
+    flat: (&'r [Rgba], &'r [Rgba]),
+    us: core::ops::Range<usize>,
+    ert: u32,
+}
+
+/// [`over_span`] for rows that hold flat voxels, each run by [`over_run_flat`]. A
+/// function the builds call out of line ([`Kernels::over_span_flat`]): inlined beside
+/// the common path, and with the rows' bits passed along it, it made that path's code
+/// longer where rows have no flat voxel (the MR head, callgrind: 4 % more instructions
+/// a frame, where 0.3 % of the runs have flat voxels).
+#[inline(always)]
+pub(crate) fn over_span_flat(span: FlatSpan<'_, '_>, kern: &impl Kernels) {
+    let FlatSpan {
+        pixels,
+        opaque,
+        taps,
+        flat,
+        us,
+        ert,
+    } = span;
+    over_runs(pixels, opaque, &taps, us, ert, kern, |px, top, bot, bl| {
+        over_run_flat(px, top, bot, taps.w, flat, bl, kern)
+    })
+}
+
+/// The loop of [`over_span`] over the open runs of the span, each composited by `run`
+/// (given the run's pixels, both rows from its first tap on and that tap's index).
+#[inline(always)]
+fn over_runs(
+    pixels: &mut [Rgba],
+    opaque: &mut [opaque::Word],
+    taps: &Taps<'_>,
+    us: core::ops::Range<usize>,
+    ert: u32,
+    kern: &impl Kernels,
+    mut run: impl FnMut(&mut [Rgba], &[Rgba], &[Rgba], usize) -> u16,
+) {
     let width = pixels.len();
     let end = us.end.min(width);
     // A pixel still at zero opacity was never composited, so it is not marked even when
@@ -872,7 +961,7 @@ fn over_span(
         else {
             return;
         };
-        let highest = kern.over_run(px, top, bot, taps.w);
+        let highest = run(px, top, bot, bl);
         // Most runs have no pixel that reached the threshold, and the run's highest
         // opacity says so without a look at each pixel (spheres256, callgrind: 9.7 %
         // fewer instructions a frame).
@@ -880,6 +969,64 @@ fn over_span(
             mark_closed(opaque, u, px, thr, kern);
         }
     }
+}
+
+/// [`Kernels::over_run`] for a run reading entries `bl..` of rows that hold flat voxels
+/// (bits `ft`, `fb`): 64 pixels at a time, the pixels whose taps may mix flat and other
+/// voxels ([`flat::mixed`]) are kept as they were, the rest composited by the kernel,
+/// and those pixels composited again from where they were with [`flat::resample`]. The
+/// rule changes a sample's colour only, so the kernel's highest opacity still holds.
+#[inline(always)]
+fn over_run_flat(
+    px: &mut [Rgba],
+    top: &[Rgba],
+    bot: &[Rgba],
+    w: [u32; 4],
+    (ft, fb): (&[Rgba], &[Rgba]),
+    bl: usize,
+    kern: &impl Kernels,
+) -> u16 {
+    const H: u32 = 1 << 14;
+    let mut highest = 0;
+    for (c, chunk) in px.chunks_mut(64).enumerate() {
+        let i0 = 64 * c;
+        let (Some(t), Some(b)) = (top.get(i0..), bot.get(i0..)) else {
+            break;
+        };
+        let f = flat::tap_words(ft, fb, bl + i0);
+        let mixed = flat::mixed(&f, chunk.len());
+        if mixed == 0 {
+            highest = highest.max(kern.over_run(chunk, t, b, w));
+            continue;
+        }
+        let mut kept = [[0u16; 4]; 64];
+        let mut m = mixed;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            if let (Some(k), Some(p)) = (kept.get_mut(i), chunk.get(i)) {
+                *k = *p;
+            }
+        }
+        highest = highest.max(kern.over_run(chunk, t, b, w));
+        let mut m = mixed;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let (Some(p), Some(k), Some(tt), Some(bb)) = (
+                chunk.get_mut(i),
+                kept.get(i),
+                t.get(i..i + 2),
+                b.get(i..i + 2),
+            ) else {
+                break;
+            };
+            let s = flat::resample(&[tt[0], tt[1], bb[0], bb[1]], w, flat::pixel(&f, i));
+            let tr = ONE - k[3] as u32;
+            *p = core::array::from_fn(|c| (k[c] as u32 + ((s[c] * tr + H) >> 15)).min(ONE) as u16);
+        }
+    }
+    highest
 }
 
 /// Marks opaque the pixels of `px` (pixel `u` first) whose opacity reached `thr`.
@@ -967,6 +1114,7 @@ impl PlainTables {
             depth: None,
             shade0: None,
             ray_gain: None,
+            flat_voxels: FlatVoxels::Excluded,
         }
     }
 }
@@ -1106,6 +1254,7 @@ mod tests {
                 depth: None,
                 shade0: None,
                 ray_gain: None,
+                flat_voxels: FlatVoxels::Excluded,
             };
             let (mut fast, mut slow) = (start, start);
             // Some pixels already opaque: both kernels must leave them alone.
@@ -1116,6 +1265,18 @@ mod tests {
                 }
             }
             let mut ls = lf;
+            // Flat voxels in every other round: none, a few, or most.
+            let density = [0, 0, 1, 6][round % 4];
+            let mut flat_bits = [[[0u16; 4]; flat::words(32)]; 2];
+            for f in flat_bits.iter_mut() {
+                for i in 0..34 {
+                    if density > 0 && next(7) < density {
+                        let mut word: u64 = bytemuck::cast(f[i / 64]);
+                        word |= 1 << (i % 64);
+                        f[i / 64] = bytemuck::cast(word);
+                    }
+                }
+            }
             let taps = Taps {
                 top: &top,
                 bot: &bot,
@@ -1123,10 +1284,25 @@ mod tests {
                 w,
             };
             let (mut exact, mut le) = (fast, lf);
-            over_span(&mut fast, &mut lf, &taps, 3..36, ert, &Portable);
-            over_span(&mut exact, &mut le, &taps, 3..36, ert, &Exact);
+            if density == 0 {
+                over_span(&mut fast, &mut lf, &taps, 3..36, ert, &Portable);
+                over_span(&mut exact, &mut le, &taps, 3..36, ert, &Exact);
+            } else {
+                let flat = (&flat_bits[0][..], &flat_bits[1][..]);
+                let span = |pixels, opaque| FlatSpan {
+                    pixels,
+                    opaque,
+                    taps,
+                    flat,
+                    us: 3..36,
+                    ert,
+                };
+                over_span_flat(span(&mut fast, &mut lf), &Portable);
+                over_span_flat(span(&mut exact, &mut le), &Exact);
+            }
             for (u, p) in slow.iter_mut().enumerate().take(36).skip(3) {
-                if !opaque::is_opaque(&ls, u) && composite_pixel(p, &top, &bot, u - 3, w, &t) {
+                let f = flat::taps(&flat_bits[0], &flat_bits[1], u - 3);
+                if !opaque::is_opaque(&ls, u) && composite_pixel(p, &top, &bot, u - 3, w, f, &t) {
                     opaque::mark(&mut ls, u);
                 }
             }
@@ -1157,6 +1333,9 @@ mod tests {
         }
         fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
             crate::perspective::composite_slice(job, self)
+        }
+        fn over_span_flat(&self, span: FlatSpan<'_, '_>) {
+            over_span_flat(span, self)
         }
     }
 

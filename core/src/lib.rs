@@ -79,6 +79,7 @@
 //!     ert_threshold: 0.95,
 //!     depth_cue: None,
 //!     shadows: false,
+//!     flat_voxels: Default::default(),
 //! };
 //! let camera = Camera { rotate_x: 20.0, rotate_y: 30.0, width: 32, height: 32 };
 //! let mut sink = FrameBuffer { width: 32, pixels: &mut image };

@@ -8,7 +8,7 @@
 #[cfg(target_arch = "x86_64")]
 use crate::classify::Voxel;
 use crate::classify::{ColorLanes, ColorTable};
-use crate::composite::{self, Intermediate, Mode, OpacityTable, Rgba, SliceTables};
+use crate::composite::{self, FlatVoxels, Intermediate, Mode, OpacityTable, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, prefix, Error};
 use crate::fixed;
@@ -34,6 +34,8 @@ pub struct Settings<'a> {
     pub depth_cue: Option<DepthCue>,
     /// Shadows cast toward the first light (needs lighting and a shadow workspace).
     pub shadows: bool,
+    /// How voxels with a zero gradient enter a sample's colour.
+    pub flat_voxels: FlatVoxels,
 }
 
 /// Caller-owned buffers for [`render`].
@@ -133,6 +135,8 @@ pub struct Frame {
     pub shadow: Option<ShadowFrame>,
     /// Perspective views: the per-ray opacity-correction gains.
     pub ray_gain: Option<RayGain>,
+    /// How flat voxels enter a sample's colour.
+    pub flat_voxels: FlatVoxels,
 }
 
 impl Frame {
@@ -254,6 +258,7 @@ impl Frame {
             view,
             ert,
             mode: settings.mode,
+            flat_voxels: settings.flat_voxels,
         })
     }
 
@@ -273,6 +278,7 @@ impl Frame {
             ert: self.ert,
             depth: self.depth.as_ref(),
             ray_gain: self.ray_gain.as_ref(),
+            flat_voxels: self.flat_voxels,
         }
     }
 }
@@ -333,21 +339,22 @@ macro_rules! band_compositor {
 
 /// Defines an instruction-set build `$name` of the band compositor, compiled with the
 /// target features `$features`, whose kernels are `[$warm, $premultiply, $over,
-/// $closed]` ([`composite::With`]), and beside it `$persp`: the perspective slice
-/// compositor compiled with the same features and kernels, in a function of its own
-/// ([`composite::Kernels::perspective`]).
+/// $closed]` ([`composite::With`]), and beside it `$persp` and `$flat`: the perspective
+/// slice compositor and the compositor of spans whose rows hold flat voxels, compiled
+/// with the same features and kernels, each in a function of its own
+/// ([`composite::Kernels::perspective`], [`composite::Kernels::over_span_flat`]).
 #[cfg(target_arch = "x86_64")]
 macro_rules! isa_band_compositor {
     (
         $(#[$attr:meta])*
-        $name:ident, $persp:ident, $features:literal,
+        $name:ident, $persp:ident, $flat:ident, $features:literal,
         [$warm:expr, $premultiply:expr, $over:expr, $closed:expr $(,)?]
     ) => {
         band_compositor! {
             $(#[$attr])*
             #[target_feature(enable = $features)]
             $name,
-            &isa_kernels!($persp, $warm, $premultiply, $over, $closed)
+            &isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed)
         }
 
         #[doc = concat!(
@@ -356,24 +363,35 @@ macro_rules! isa_band_compositor {
         #[target_feature(enable = $features)]
         #[inline(never)]
         fn $persp(job: composite::SliceJob<'_, '_>) -> Result<(), Error> {
-            let kern = isa_kernels!($persp, $warm, $premultiply, $over, $closed);
+            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed);
             crate::perspective::composite_slice_in(job, &kern)
+        }
+
+        #[doc = concat!(
+            "[`composite::over_span_flat`] as [`", stringify!($name), "`] builds it."
+        )]
+        #[target_feature(enable = $features)]
+        #[inline(never)]
+        fn $flat(span: composite::FlatSpan<'_, '_>) {
+            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed);
+            composite::over_span_flat(span, &kern)
         }
     };
 }
 
 /// The kernels of an instruction-set build ([`isa_band_compositor`]): written where the
 /// build's target features are enabled, so the closures are compiled with them and may
-/// call `$persp`.
+/// call `$persp` and `$flat`.
 #[cfg(target_arch = "x86_64")]
 macro_rules! isa_kernels {
-    ($persp:ident, $warm:expr, $premultiply:expr, $over:expr, $closed:expr) => {
+    ($persp:ident, $flat:ident, $warm:expr, $premultiply:expr, $over:expr, $closed:expr) => {
         composite::With(
             $warm,
             $premultiply,
             $over,
             $closed,
             |job: composite::SliceJob<'_, '_>| $persp(job),
+            |span: composite::FlatSpan<'_, '_>| $flat(span),
         )
     };
 }
@@ -413,6 +431,7 @@ isa_band_compositor! {
     /// function is `unsafe` to call only because it enables target features.
     composite_band_until_x86_64,
     perspective_x86_64,
+    over_span_flat_x86_64,
     "sse,sse2",
     [
         |v: &[Voxel]| prefetch!(v),
@@ -444,6 +463,7 @@ isa_band_compositor! {
     /// (the file frontend's `isa` module does).
     composite_band_until_x86_v3,
     perspective_x86_v3,
+    over_span_flat_x86_v3,
     "avx2,bmi1,bmi2,fma,lzcnt,popcnt",
     [
         |v: &[Voxel]| prefetch!(v),
@@ -464,6 +484,7 @@ isa_band_compositor! {
     /// As for [`composite_band_until_x86_v3`], with the AVX-512 features too.
     composite_band_until_x86_v4,
     perspective_x86_v4,
+    over_span_flat_x86_v4,
     "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd",
     [
         |v: &[Voxel]| prefetch!(v),
@@ -826,6 +847,7 @@ mod tests {
             ert_threshold: 0.95,
             depth_cue: None,
             shadows: false,
+            flat_voxels: Default::default(),
         }
     }
 
@@ -875,6 +897,7 @@ mod tests {
                     ert_threshold: ert,
                     depth_cue: None,
                     shadows: false,
+                    flat_voxels: Default::default(),
                 };
                 let view = Factorization::new(&grid, &cam).unwrap();
                 let whole = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
@@ -895,6 +918,7 @@ mod tests {
                     depth: None,
                     shade0: None,
                     ray_gain: None,
+                    flat_voxels: FlatVoxels::Blended,
                 };
                 let [iw, ih] = view.intermediate;
                 let mut p2 = vec![[0u16; 4]; iw * ih];
@@ -945,6 +969,7 @@ mod tests {
             ert_threshold: 0.95,
             depth_cue,
             shadows,
+            flat_voxels: Default::default(),
         };
         // (settings, supersampling, perspective field of view).
         let ways = [
@@ -1011,7 +1036,7 @@ mod tests {
         let color = ramp_colours();
         let lighting = Lighting::default();
         let mut shade = ShadeTable::UNSHADED;
-        let mut rows = vec![[0u16; 4]; 64];
+        let mut rows = vec![[0u16; 4]; 128];
         let mut splits = 0;
         for (rx, ry) in [(20.0, 35.0), (-60.0, 10.0), (10.0, 100.0)] {
             let cam = view48(rx, ry);
@@ -1025,6 +1050,7 @@ mod tests {
                     density: 1.5,
                 }),
                 shadows: false,
+                flat_voxels: Default::default(),
             };
             let frame = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
             let tables = frame.tables(&shade, None);
@@ -1097,7 +1123,7 @@ mod tests {
         let mut px = vec![[0u16; 4]; iw * ih];
         let mut links = vec![0; iw * ih];
         let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
-        let mut rows = vec![[0u16; 4]; 64];
+        let mut rows = vec![[0u16; 4]; 128];
         let mut asked = 0;
         let mut three = || {
             asked += 1;
@@ -1148,7 +1174,7 @@ mod tests {
         let color = [[ONE as u16; 3]; 256];
         let settings = unlit(&color);
         let cam = small_camera();
-        let mut ws_full = StaticWorkspace::<200, 12, 16>::new();
+        let mut ws_full = StaticWorkspace::<200, 16, 16>::new();
         let mut frame = [[0u8; 4]; 256];
         let mut sink = FrameBuffer {
             width: 16,
@@ -1162,7 +1188,7 @@ mod tests {
             &mut sink
         )
         .is_ok());
-        let mut small_pix = StaticWorkspace::<20, 12, 16>::new();
+        let mut small_pix = StaticWorkspace::<20, 16, 16>::new();
         assert!(matches!(
             render(
                 &mut vol,
@@ -1173,7 +1199,7 @@ mod tests {
             ),
             Err(Error::BufferTooSmall { .. })
         ));
-        let mut small_row = StaticWorkspace::<200, 12, 8>::new();
+        let mut small_row = StaticWorkspace::<200, 16, 8>::new();
         assert!(render(
             &mut vol,
             &cam,

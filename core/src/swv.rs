@@ -131,6 +131,7 @@ impl Look {
             ert_threshold: 0.95,
             depth_cue: None,
             shadows: false,
+            flat_voxels: Default::default(),
         }
     }
 }

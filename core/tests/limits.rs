@@ -394,6 +394,7 @@ fn settings(color: &shearwarp_core::classify::ColorTable) -> Settings<'_> {
         ert_threshold: 0.95,
         depth_cue: None,
         shadows: false,
+        flat_voxels: Default::default(),
     }
 }
 

@@ -355,6 +355,7 @@ fn settings<'a>(v: &'a View, color: &'a ColorTable) -> Settings<'a> {
         ert_threshold: v.ert,
         depth_cue: v.depth,
         shadows: v.shadows,
+        flat_voxels: Default::default(),
     }
 }
 

@@ -146,6 +146,7 @@ fn unlit(color: &[[u16; 3]; 256], depth_cue: Option<DepthCue>) -> Settings<'_> {
         ert_threshold: 1.0,
         depth_cue,
         shadows: false,
+        flat_voxels: Default::default(),
     }
 }
 

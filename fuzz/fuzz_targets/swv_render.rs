@@ -16,7 +16,7 @@
 use std::cell::RefCell;
 
 use libfuzzer_sys::fuzz_target;
-use shearwarp_core::composite::{self, Mode, Rgba};
+use shearwarp_core::composite::{self, FlatVoxels, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::io::SliceReader;
 use shearwarp_core::render::{render, render_frame, Frame, Settings, ShadowWorkspace, Workspace};
@@ -117,10 +117,18 @@ fn run(data: &[u8]) {
     BUFS.with(|b| {
         let b = &mut *b.borrow_mut();
         for (rx, ry, mode, depth_cue, shadows) in frames {
+            // Flat voxels excluded from the colour in the frames with a light and the
+            // depth-cued one, so that its path meets malformed volumes too.
+            let flat_voxels = if shadows || depth_cue.is_some() {
+                FlatVoxels::Excluded
+            } else {
+                FlatVoxels::Blended
+            };
             let settings = Settings {
                 mode,
                 depth_cue,
                 shadows,
+                flat_voxels,
                 ..look.settings()
             };
             let cam = Camera {

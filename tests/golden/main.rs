@@ -228,6 +228,7 @@ fn integrated_opacity(
         ert_threshold: 1.0,
         depth_cue: None,
         shadows: false,
+        flat_voxels: Default::default(),
     };
     let mut shade = ShadeTable::UNSHADED;
     let frame = Frame::new(&enc.grid, cam, &settings, &mut shade, None).unwrap();
@@ -235,7 +236,8 @@ fn integrated_opacity(
     let [w, h] = frame.view.intermediate;
     let mut px = vec![[0u16; 4]; w * h];
     let mut links = vec![0; w * h];
-    let mut rows = vec![[0u16; 4]; 2 * (enc.grid.dims.iter().max().unwrap() + 2)];
+    let side = *enc.grid.dims.iter().max().unwrap();
+    let mut rows = vec![[0u16; 4]; shearwarp_core::composite::row_buffer_len(side)];
     let mut img = Intermediate::new(w, h, &mut px, &mut links).unwrap();
     let mut src = enc.volume().unwrap();
     composite_band(&mut src, &frame, &tables, &mut img, &mut rows, None).unwrap();

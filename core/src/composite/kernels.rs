@@ -3,7 +3,7 @@
 //! closed. The portable versions are the reference every vector version is tested
 //! against bit for bit.
 
-use super::{Rgba, SliceJob};
+use super::{FlatSpan, Rgba, SliceJob};
 use crate::classify::Voxel;
 use crate::error::Error;
 use crate::fixed::{self, ONE};
@@ -30,6 +30,11 @@ pub(crate) trait Kernels {
     /// with these kernels, in a function of its own compiled for the build's
     /// instruction set: inlined into the band compositor instead, it made frames slower.
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error>;
+    /// Composites a span of a scanline whose rows hold flat voxels
+    /// ([`super::over_span_flat_in`]) with these kernels, in a function of its own
+    /// compiled for the build's instruction set: out of line so that the common path's
+    /// code stays as it was, and compiled for the build so that it still inlines them.
+    fn over_span_flat(&self, span: FlatSpan<'_, '_>);
 }
 
 /// The portable kernels: [`touch`], [`premultiply`], [`closed_bits`] and [`over_run`],
@@ -59,6 +64,10 @@ impl Kernels for Portable {
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
         crate::perspective::composite_slice(job, self)
     }
+    #[inline(always)]
+    fn over_span_flat(&self, span: FlatSpan<'_, '_>) {
+        super::over_span_flat(span, self)
+    }
 }
 
 /// Kernels given as closures: an instruction-set build writes them inside its
@@ -66,16 +75,17 @@ impl Kernels for Portable {
 /// vector intrinsics those features make safe). Only the x86-64 builds have such
 /// functions.
 #[cfg(target_arch = "x86_64")]
-pub(crate) struct With<W, P, O, C, S>(pub W, pub P, pub O, pub C, pub S);
+pub(crate) struct With<W, P, O, C, S, F>(pub W, pub P, pub O, pub C, pub S, pub F);
 
 #[cfg(target_arch = "x86_64")]
-impl<W, P, O, C, S> Kernels for With<W, P, O, C, S>
+impl<W, P, O, C, S, F> Kernels for With<W, P, O, C, S, F>
 where
     W: Fn(&[Voxel]),
     P: Fn(&[u16; 4], &ShadeEntry, u32) -> Rgba,
     O: Fn(&mut [Rgba], &[Rgba], &[Rgba], [u32; 4]) -> u16,
     C: Fn(&[Rgba], u32) -> u64,
     S: Fn(SliceJob<'_, '_>) -> Result<(), Error>,
+    F: Fn(FlatSpan<'_, '_>),
 {
     #[inline(always)]
     fn warm(&self, voxels: &[Voxel]) {
@@ -96,6 +106,10 @@ where
     #[inline(always)]
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
         (self.4)(job)
+    }
+    #[inline(always)]
+    fn over_span_flat(&self, span: FlatSpan<'_, '_>) {
+        (self.5)(span)
     }
 }
 

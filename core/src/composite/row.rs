@@ -6,7 +6,7 @@
 //! row is never read, so [`Needed`] tells a row, from the opaque-pixel bitmaps of those
 //! two scanlines, which voxels to shade and whether to shade it at all.
 
-use super::{row_buffer_len, Intermediate, Kernels, Rgba, Shading, SliceTables};
+use super::{flat, row_buffer_len, FlatVoxels, Intermediate, Kernels, Rgba, Shading, SliceTables};
 use crate::classify::Voxel;
 use crate::opaque;
 
@@ -55,6 +55,11 @@ impl Iterator for Spans<'_> {
 /// elsewhere, plus the range that holds non-zero entries (to clear it cheaply).
 pub(crate) struct Row<'b> {
     pub(crate) buf: &'b mut [Rgba],
+    /// One bit per entry of `buf`, set for flat voxels ([`flat`]), as 64-bit words; empty
+    /// where no rule for flat voxels is applied (perspective rows).
+    pub(crate) flat: &'b mut [Rgba],
+    /// True if some bit of `flat` may be set.
+    pub(crate) has_flat: bool,
     dirty: (usize, usize),
     /// The runs of entries written since the last clear, `written` of them, when there
     /// are at most [`Row::RUNS`]; more (or an unknown set) clear the whole extent.
@@ -70,13 +75,20 @@ impl<'b> Row<'b> {
     /// `clean` says it already is.
     pub(crate) fn new(buf: &'b mut [Rgba], clean: bool) -> Self {
         let n = if clean { 0 } else { buf.len() };
-        Row::cleared(buf, (0, n))
+        Row::cleared(buf, &mut [], (0, n))
     }
 
-    /// A row over `buf` whose entries `dirty` may be non-zero, cleared.
-    pub(super) fn cleared(buf: &'b mut [Rgba], dirty: (usize, usize)) -> Self {
+    /// A row over `buf` and flat bits `flat` whose entries `dirty` may be non-zero (and
+    /// whose bits may be set unless `dirty` is empty), cleared.
+    pub(super) fn cleared(
+        buf: &'b mut [Rgba],
+        flat: &'b mut [Rgba],
+        dirty: (usize, usize),
+    ) -> Self {
         let mut r = Row {
             buf,
+            flat,
+            has_flat: dirty.0 < dirty.1,
             dirty,
             runs: [(0, 0); Row::RUNS],
             written: Row::UNKNOWN,
@@ -86,12 +98,17 @@ impl<'b> Row<'b> {
     }
 
     /// The two row buffers for slices `ni` wide (`rows` holds at least
-    /// [`row_buffer_len`]`(ni)` entries), cleared unless `clean` says they already are.
+    /// [`row_buffer_len`]`(ni)` entries: two rows of `ni + 2`, then their flat bits),
+    /// cleared unless `clean` says they already are.
     pub(super) fn pair(rows: &'b mut [Rgba], ni: usize, clean: bool) -> (Row<'b>, Row<'b>) {
         let rows = rows.get_mut(..row_buffer_len(ni)).unwrap_or_default();
-        let (r0, r1) = rows.split_at_mut_checked(ni + 2).unwrap_or_default();
+        let (r0, rest) = rows.split_at_mut_checked(ni + 2).unwrap_or_default();
+        let (r1, rest) = rest.split_at_mut_checked(ni + 2).unwrap_or_default();
+        let (f0, f1) = rest
+            .split_at_mut_checked(flat::words(ni))
+            .unwrap_or_default();
         let all = if clean { (0, 0) } else { (0, ni + 2) };
-        (Row::cleared(r0, all), Row::cleared(r1, all))
+        (Row::cleared(r0, f0, all), Row::cleared(r1, f1, all))
     }
 
     /// Buffer indices `[lo, hi)` that may hold non-zero entries, `None` if none.
@@ -152,8 +169,22 @@ impl<'b> Row<'b> {
                 None => self.buf[a..b].fill([0; 4]),
             }
         }
+        if self.has_flat {
+            self.flat.fill([0; 4]);
+            self.has_flat = false;
+        }
         self.dirty = (0, 0);
         self.written = 0;
+    }
+
+    /// Sets the flat bits of voxels `src` (as many as were shaded, `n`, some of them
+    /// flat), at entries `x + 1..`.
+    #[inline(never)]
+    fn mark_flat(&mut self, x: usize, src: &[Voxel], n: usize) {
+        if !self.flat.is_empty() {
+            flat::mark(self.flat, x + 1, src.get(..n).unwrap_or(src));
+            self.has_flat = true;
+        }
     }
 
     /// Most runs [`Row::clear`] keeps. None on other targets: the Cortex-M3 frame took
@@ -199,7 +230,9 @@ impl<'b> Row<'b> {
         let Some(dst) = self.buf.get_mut(x + 1..y + 1) else {
             return;
         };
-        shading.shade_run(dst, src, x, t, j, k);
+        if shading.shade_run(dst, src, x, t, j, k) && t.flat_voxels == FlatVoxels::Excluded {
+            self.mark_flat(x, src, y - x);
+        }
         self.wrote(x + 1, y + 1);
         self.dirty = match self.extent() {
             Some((lo, hi)) => (lo.min(x + 1), hi.max(y + 1)),
@@ -244,7 +277,11 @@ impl<'b> Row<'b> {
                     else {
                         continue;
                     };
-                    shading.shade_run(dst, src, a, t, j, k);
+                    if shading.shade_run(dst, src, a, t, j, k)
+                        && t.flat_voxels == FlatVoxels::Excluded
+                    {
+                        self.mark_flat(a, src, b - a);
+                    }
                     self.wrote(a + 1, b + 1);
                 }
                 Some(n) => {
@@ -276,7 +313,11 @@ impl<'b> Row<'b> {
                             else {
                                 continue;
                             };
-                            shading.shade_run(dst, src, c, t, j, k);
+                            if shading.shade_run(dst, src, c, t, j, k)
+                                && t.flat_voxels == FlatVoxels::Excluded
+                            {
+                                self.mark_flat(c, src, d - c);
+                            }
                             self.wrote(c + 1, d + 1);
                         }
                     }

@@ -4,6 +4,7 @@
 use super::{Kernels, Mode, Rgba, SliceTables};
 use crate::classify::Voxel;
 use crate::fixed::{self, ONE};
+use crate::normal::ZERO_GRADIENT;
 use crate::shade::ShadeTable;
 use crate::shadow::ShadowLookup;
 
@@ -15,7 +16,13 @@ use crate::shadow::ShadowLookup;
 /// instead of 4.92.
 pub(crate) trait Shading {
     /// Shades voxels `src` (the first at index `first` of row `j`) into `out`, as many
-    /// as `out` holds (`src` may run on past them).
+    /// as `out` holds (`src` may run on past them). True if one of them may be flat
+    /// and the rule for flat voxels applies ([`super::flat`]: to every way that shades,
+    /// not to MIP's grey). Asked here, where each voxel's code is at hand, it costs an
+    /// OR a voxel: the flat code is the only one with its bit set, so the OR of the
+    /// run's codes has it when one is flat (or invalid; [`super::flat::mark`] then
+    /// compares each). A pass of its own over the shaded voxels cost more, for the
+    /// calls on the many short runs.
     fn shade_run(
         &self,
         out: &mut [Rgba],
@@ -24,7 +31,7 @@ pub(crate) trait Shading {
         t: &SliceTables<'_>,
         j: i64,
         k: &impl Kernels,
-    );
+    ) -> bool;
 }
 
 /// Composite mode, unshadowed, without depth cueing: the premultiplied shaded colour.
@@ -40,12 +47,15 @@ impl Shading for Lit {
         t: &SliceTables<'_>,
         _: i64,
         k: &impl Kernels,
-    ) {
+    ) -> bool {
+        let mut codes = 0u16;
         for (o, vox) in out.iter_mut().zip(src) {
             let alpha = t.opacity.get(vox.opacity);
             let c = &t.color[vox.scalar as usize];
             *o = k.premultiply(c, t.shade.entry_ref(vox.normal), alpha);
+            codes |= vox.normal;
         }
+        codes & ZERO_GRADIENT != 0
     }
 }
 
@@ -63,14 +73,17 @@ impl Shading for Cued {
         t: &SliceTables<'_>,
         _: i64,
         k: &impl Kernels,
-    ) {
+    ) -> bool {
+        let mut codes = 0u16;
         for (o, vox) in out.iter_mut().zip(src) {
             let alpha = t.opacity.get(vox.opacity);
             let c = &t.color[vox.scalar as usize];
             let a = fixed::mul(alpha, self.0);
             let [r, g, b, _] = k.premultiply(c, t.shade.entry_ref(vox.normal), a);
             *o = [r, g, b, alpha as u16];
+            codes |= vox.normal;
         }
+        codes & ZERO_GRADIENT != 0
     }
 }
 
@@ -93,7 +106,8 @@ impl Shading for Shadowed<'_, '_> {
         t: &SliceTables<'_>,
         j: i64,
         _: &impl Kernels,
-    ) {
+    ) -> bool {
+        let mut codes = 0u16;
         for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
             let alpha = t.opacity.get(vox.opacity);
             let [r, g, b, _] = t.color[vox.scalar as usize];
@@ -109,7 +123,9 @@ impl Shading for Shadowed<'_, '_> {
             }
             px[3] = alpha as u16;
             *o = px;
+            codes |= vox.normal;
         }
+        codes & ZERO_GRADIENT != 0
     }
 }
 
@@ -126,11 +142,12 @@ impl Shading for Mip {
         _: &SliceTables<'_>,
         _: i64,
         _: &impl Kernels,
-    ) {
+    ) -> bool {
         for (o, vox) in out.iter_mut().zip(src) {
             let g = fixed::from_u8(vox.scalar) as u16;
             *o = [g; 4];
         }
+        false
     }
 }
 
@@ -175,7 +192,7 @@ impl Shading for Way<'_, '_> {
         t: &SliceTables<'_>,
         j: i64,
         k: &impl Kernels,
-    ) {
+    ) -> bool {
         match self {
             Way::Lit => Lit.shade_run(out, src, first, t, j, k),
             Way::Cued(scale) => Cued(*scale).shade_run(out, src, first, t, j, k),

@@ -4,6 +4,7 @@
 
 use crate::scenes::{Loaded, Scene};
 use crate::volpack::{self, VolPack};
+use shearwarp_core::composite::FlatVoxels;
 use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::Camera;
 use shearwarp_file::isa::Isa;
@@ -47,6 +48,8 @@ pub struct Options {
     /// Compare the supersampled runs' images and the plain ones at the same sizes
     /// against the reference even where `psnr` is off (the scaling series).
     pub supersample_psnr: bool,
+    /// How shearwarp's samples take flat voxels into their colour.
+    pub flat_voxels: FlatVoxels,
 }
 
 /// Median of a set of timings, ms.
@@ -352,6 +355,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         let renderer = |threads: usize, isa: Isa| {
             let mut r = Renderer::with_threads(&enc.grid, threads);
             r.set_isa(isa);
+            r.set_flat_voxels(opts.flat_voxels);
             r
         };
         let mut r1 = renderer(1, opts.isa);

@@ -13,7 +13,8 @@ mod synth;
 mod volpack;
 
 use bench::{Options, SceneResult};
-use clap::Parser;
+use clap::{Parser, ValueEnum};
+use shearwarp_core::composite::FlatVoxels;
 use shearwarp_file::isa::Isa;
 use std::error::Error;
 use std::fmt::Write as _;
@@ -96,11 +97,23 @@ struct Cli {
     /// them), at the image sizes at least twice the volume's largest side.
     #[arg(long, default_value_t = 2)]
     supersample: usize,
+    /// How shearwarp's samples take voxels with a zero gradient into their colour:
+    /// blended like the others (the default), or excluded where voxels with a direction
+    /// are present (`shearwarp_core::composite::FlatVoxels`).
+    #[arg(long, value_enum, default_value_t = FlatVoxelsArg::Blended)]
+    flat_voxels: FlatVoxelsArg,
     /// Render the training scenes (volumes the benchmark does not time) with shearwarp
     /// alone, every way the benchmark renders, and exit: the training run of a
     /// profile-guided build (`frontends/bench/pgo.sh`).
     #[arg(long)]
     train: bool,
+}
+
+/// `--flat-voxels`.
+#[derive(Clone, Copy, ValueEnum)]
+enum FlatVoxelsArg {
+    Blended,
+    Excluded,
 }
 
 /// What a profile-guided build of this binary was trained on, set at compile time by
@@ -380,6 +393,10 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         baseline: !cli.no_baseline,
         supersample: (cli.supersample > 1).then_some(cli.supersample),
         supersample_psnr: !cli.no_psnr,
+        flat_voxels: match cli.flat_voxels {
+            FlatVoxelsArg::Blended => FlatVoxels::Blended,
+            FlatVoxelsArg::Excluded => FlatVoxels::Excluded,
+        },
     };
     if cli.train {
         let opts = Options {

@@ -201,8 +201,9 @@ pub fn fill_shade(
 mod tests {
     use super::*;
     use shearwarp_core::classify::{Grid, Voxel};
-    use shearwarp_core::composite::{Mode, OpacityTable};
+    use shearwarp_core::composite::{FlatVoxels, Mode, OpacityTable};
     use shearwarp_core::depth::DepthCue;
+    use shearwarp_core::normal;
     use shearwarp_core::render::Settings;
     use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
     use shearwarp_core::shade::{ShadeEntry, ShadeTable};
@@ -222,9 +223,9 @@ mod tests {
     /// The wider builds replace the per-voxel shading step and the per-pixel "over" step
     /// with vector code; with every table entry drawn from the whole `u16` range
     /// (colours, shading factors and opacities a real lighting never produces, normal
-    /// codes past the table) they must still give the pixels of the core's portable
-    /// compositor bit for bit, as must the baseline build, with and without depth
-    /// cueing.
+    /// codes past the table, a quarter of the voxels flat) they must still give the
+    /// pixels of the core's portable compositor bit for bit, as must the baseline build,
+    /// with and without depth cueing, with flat voxels blended and excluded.
     #[test]
     fn wider_builds_shade_extreme_tables_like_the_baseline() {
         let mut rnd = xorshift(0x2545_f491_4f6c_dd1d);
@@ -241,7 +242,12 @@ mod tests {
                         (r >> 8) as u8
                     },
                     scalar: (r >> 16) as u8,
-                    normal: (r >> 24) as u16 % 8400,
+                    // A quarter flat, so samples mix them with the others.
+                    normal: if (r >> 40).is_multiple_of(4) {
+                        normal::ZERO_GRADIENT
+                    } else {
+                        (r >> 24) as u16 % 8400
+                    },
                 }
             })
             .collect();
@@ -273,12 +279,16 @@ mod tests {
             };
         }
         let levels: Vec<Isa> = Isa::ALL.into_iter().filter(|i| i.available()).collect();
-        for depth_cue in [
-            None,
-            Some(DepthCue {
-                front: 0.9,
-                density: 2.0,
-            }),
+        let cue = Some(DepthCue {
+            front: 0.9,
+            density: 2.0,
+        });
+        let mut portables = Vec::new();
+        for (depth_cue, flat_voxels) in [
+            (None, FlatVoxels::Blended),
+            (cue, FlatVoxels::Blended),
+            (None, FlatVoxels::Excluded),
+            (cue, FlatVoxels::Excluded),
         ] {
             let settings = Settings {
                 mode: Mode::Composite,
@@ -287,6 +297,7 @@ mod tests {
                 ert_threshold: 0.97,
                 depth_cue,
                 shadows: false,
+                flat_voxels,
             };
             let cam = Camera {
                 rotate_x: 21.0,
@@ -313,7 +324,7 @@ mod tests {
             let composite = |isa: Option<Isa>| -> Vec<Rgba> {
                 let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
                 let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
-                let mut rows = vec![[0u16; 4]; 64];
+                let mut rows = vec![[0u16; 4]; 128];
                 let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
                 let go = &mut || true;
                 let all = 0..frame.view.dims[2];
@@ -338,7 +349,10 @@ mod tests {
                     isa.name()
                 );
             }
+            portables.push(portable);
         }
+        // The rule for flat voxels was exercised: it changed the frame.
+        assert!(portables[0] != portables[2] && portables[1] != portables[3]);
     }
 
     /// The x86-64-v3 and v4 warps against the portable one, each also skipping background

@@ -1,7 +1,7 @@
 //! `shearwarp`: render volumes to PNG and benchmark the renderer.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use shearwarp_core::composite::Mode;
+use shearwarp_core::composite::{FlatVoxels, Mode};
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
@@ -118,6 +118,21 @@ enum Command {
 }
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+enum FlatVoxelsArg {
+    Blended,
+    Excluded,
+}
+
+impl From<FlatVoxelsArg> for FlatVoxels {
+    fn from(a: FlatVoxelsArg) -> Self {
+        match a {
+            FlatVoxelsArg::Blended => FlatVoxels::Blended,
+            FlatVoxelsArg::Excluded => FlatVoxels::Excluded,
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 enum ProjectionArg {
     Parallel,
     Perspective,
@@ -223,6 +238,12 @@ struct RenderOpts {
     /// for images larger than the volume's projection.
     #[arg(long, default_value_t = 1)]
     supersample: usize,
+    /// Voxels with a zero gradient (plateaus, shaded as unoriented): blended into a
+    /// sample's colour like the others, or excluded from it where voxels with a
+    /// direction are present, as a ray caster normalising gradients per sample shades
+    /// them (parallel projection; costs time only where there are such voxels).
+    #[arg(long, value_enum, default_value_t = FlatVoxelsArg::Blended)]
+    flat_voxels: FlatVoxelsArg,
     /// Projection: parallel (the default) or perspective (camera on +Z at the distance
     /// where the volume's bounding sphere fills --fov).
     #[arg(long, value_enum, default_value_t = ProjectionArg::Parallel)]
@@ -842,6 +863,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
                 r.set_isa(opts.isa.unwrap_or_else(Isa::detect));
                 r.set_supersample(opts.supersample)?;
+                r.set_flat_voxels(opts.flat_voxels.into());
                 r.set_perspective(opts.perspective()?);
                 let r = std::cell::RefCell::new(r);
                 let (frames, ms) = render_out(
@@ -1052,6 +1074,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_isa(opts.isa.unwrap_or_else(Isa::detect));
             r.set_supersample(opts.supersample)?;
+            r.set_flat_voxels(opts.flat_voxels.into());
             r.set_perspective(opts.perspective()?);
             // One output buffer for every frame, as a viewer keeps its window's and as
             // `shearwarp-bench` times it, so that the allocator is not part of the figure.

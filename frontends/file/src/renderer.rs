@@ -6,7 +6,7 @@ use crate::isa::{self, Isa};
 use crate::scene::Look;
 use crate::steal::{Piece, Retire, Sharing};
 use shearwarp_core::classify::Grid;
-use shearwarp_core::composite::{self, Intermediate, Rgba};
+use shearwarp_core::composite::{self, FlatVoxels, Intermediate, Rgba};
 use shearwarp_core::opaque;
 use shearwarp_core::render::{Frame, Settings};
 use shearwarp_core::shade::ShadeTable;
@@ -206,6 +206,7 @@ pub struct Renderer {
     /// the head in four.
     own_shade: Vec<Box<ShadeTable>>,
     supersample: usize,
+    flat_voxels: FlatVoxels,
     fov: Option<f64>,
     /// The other `threads - 1` workers, started once. Starting a thread took about 40 µs
     /// here, twice a frame; waking a parked worker took 2 µs right after its last job
@@ -258,6 +259,7 @@ impl Renderer {
                 .map(|_| Box::new(ShadeTable::UNSHADED))
                 .collect(),
             supersample: 1,
+            flat_voxels: FlatVoxels::Blended,
             fov: None,
             pool,
             isa: Isa::detect(),
@@ -286,6 +288,12 @@ impl Renderer {
         }
         self.supersample = s;
         Ok(())
+    }
+
+    /// How voxels with a zero gradient enter a sample's colour
+    /// ([`shearwarp_core::composite::FlatVoxels`]; blended by default).
+    pub fn set_flat_voxels(&mut self, f: FlatVoxels) {
+        self.flat_voxels = f;
     }
 
     /// Renders perspective views with a `fov` (degrees) field of view, or parallel
@@ -381,6 +389,7 @@ impl Renderer {
             ert_threshold: look.ert_threshold,
             depth_cue: look.depth_cue,
             shadows: look.shadows,
+            flat_voxels: self.flat_voxels,
         };
         let grid = source.grid();
         let shade0 = look.shadows.then_some(&mut *self.shade0);

@@ -202,6 +202,7 @@ fn run() -> Result<(), Error> {
             density: 1.0,
         })),
         shadows: black_box(true),
+        flat_voxels: Default::default(),
     };
     let mut pixels = [[0u16; 4]; N];
     let mut links = [0; N];
