@@ -16,11 +16,8 @@ use core::num::{NonZeroU32, NonZeroU64};
 pub const GRID: i64 = 64;
 /// Number of codes for non-zero gradients.
 pub const DIRECTIONS: usize = (2 * GRID * GRID) as usize;
-/// Code for a zero gradient. A power of two above every direction's code, so a code
-/// is this one exactly when it has this bit (the compositor ORs a run's codes to ask
-/// whether one is flat).
+/// Code for a zero gradient.
 pub const ZERO_GRADIENT: u16 = DIRECTIONS as u16;
-const _: () = assert!(ZERO_GRADIENT.is_power_of_two() && ZERO_GRADIENT as usize == DIRECTIONS);
 /// Size of tables indexed by normal code.
 pub const CODES: usize = DIRECTIONS + 1;
 

@@ -177,12 +177,13 @@ impl<'b> Row<'b> {
         self.written = 0;
     }
 
-    /// Sets the flat bits of voxels `src` (as many as were shaded, `n`, some of them
-    /// flat), at entries `x + 1..`.
+    /// Sets the flat bits of voxels `src` (as many as were shaded, `n`) at entries
+    /// `x + 1..`, with flat voxels excluded from samples' colours. A pass of its own over
+    /// the shaded voxels, out of line: asked in the shading loops instead, the test cost
+    /// the default way an instruction a voxel.
     #[inline(never)]
     fn mark_flat(&mut self, x: usize, src: &[Voxel], n: usize) {
-        if !self.flat.is_empty() {
-            flat::mark(self.flat, x + 1, src.get(..n).unwrap_or(src));
+        if !self.flat.is_empty() && flat::mark(self.flat, x + 1, src.get(..n).unwrap_or(src)) {
             self.has_flat = true;
         }
     }
@@ -230,7 +231,8 @@ impl<'b> Row<'b> {
         let Some(dst) = self.buf.get_mut(x + 1..y + 1) else {
             return;
         };
-        if shading.shade_run(dst, src, x, t, j, k) && t.flat_voxels == FlatVoxels::Excluded {
+        shading.shade_run(dst, src, x, t, j, k);
+        if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
             self.mark_flat(x, src, y - x);
         }
         self.wrote(x + 1, y + 1);
@@ -277,9 +279,8 @@ impl<'b> Row<'b> {
                     else {
                         continue;
                     };
-                    if shading.shade_run(dst, src, a, t, j, k)
-                        && t.flat_voxels == FlatVoxels::Excluded
-                    {
+                    shading.shade_run(dst, src, a, t, j, k);
+                    if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
                         self.mark_flat(a, src, b - a);
                     }
                     self.wrote(a + 1, b + 1);
@@ -313,9 +314,8 @@ impl<'b> Row<'b> {
                             else {
                                 continue;
                             };
-                            if shading.shade_run(dst, src, c, t, j, k)
-                                && t.flat_voxels == FlatVoxels::Excluded
-                            {
+                            shading.shade_run(dst, src, c, t, j, k);
+                            if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
                                 self.mark_flat(c, src, d - c);
                             }
                             self.wrote(c + 1, d + 1);

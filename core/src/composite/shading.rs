@@ -4,7 +4,6 @@
 use super::{Kernels, Mode, Rgba, SliceTables};
 use crate::classify::Voxel;
 use crate::fixed::{self, ONE};
-use crate::normal::ZERO_GRADIENT;
 use crate::shade::ShadeTable;
 use crate::shadow::ShadowLookup;
 
@@ -16,13 +15,7 @@ use crate::shadow::ShadowLookup;
 /// instead of 4.92.
 pub(crate) trait Shading {
     /// Shades voxels `src` (the first at index `first` of row `j`) into `out`, as many
-    /// as `out` holds (`src` may run on past them). True if one of them may be flat
-    /// and the rule for flat voxels applies ([`super::flat`]: to every way that shades,
-    /// not to MIP's grey). Asked here, where each voxel's code is at hand, it costs an
-    /// OR a voxel: the flat code is the only one with its bit set, so the OR of the
-    /// run's codes has it when one is flat (or invalid; [`super::flat::mark`] then
-    /// compares each). A pass of its own over the shaded voxels cost more, for the
-    /// calls on the many short runs.
+    /// as `out` holds (`src` may run on past them).
     fn shade_run(
         &self,
         out: &mut [Rgba],
@@ -31,7 +24,14 @@ pub(crate) trait Shading {
         t: &SliceTables<'_>,
         j: i64,
         k: &impl Kernels,
-    ) -> bool;
+    );
+
+    /// Whether this way shades (flat voxels matter to it, [`super::flat`]): every way
+    /// but MIP's grey.
+    #[inline(always)]
+    fn shades(&self) -> bool {
+        true
+    }
 }
 
 /// Composite mode, unshadowed, without depth cueing: the premultiplied shaded colour.
@@ -47,15 +47,12 @@ impl Shading for Lit {
         t: &SliceTables<'_>,
         _: i64,
         k: &impl Kernels,
-    ) -> bool {
-        let mut codes = 0u16;
+    ) {
         for (o, vox) in out.iter_mut().zip(src) {
             let alpha = t.opacity.get(vox.opacity);
             let c = &t.color[vox.scalar as usize];
             *o = k.premultiply(c, t.shade.entry_ref(vox.normal), alpha);
-            codes |= vox.normal;
         }
-        codes & ZERO_GRADIENT != 0
     }
 }
 
@@ -73,17 +70,14 @@ impl Shading for Cued {
         t: &SliceTables<'_>,
         _: i64,
         k: &impl Kernels,
-    ) -> bool {
-        let mut codes = 0u16;
+    ) {
         for (o, vox) in out.iter_mut().zip(src) {
             let alpha = t.opacity.get(vox.opacity);
             let c = &t.color[vox.scalar as usize];
             let a = fixed::mul(alpha, self.0);
             let [r, g, b, _] = k.premultiply(c, t.shade.entry_ref(vox.normal), a);
             *o = [r, g, b, alpha as u16];
-            codes |= vox.normal;
         }
-        codes & ZERO_GRADIENT != 0
     }
 }
 
@@ -106,8 +100,7 @@ impl Shading for Shadowed<'_, '_> {
         t: &SliceTables<'_>,
         j: i64,
         _: &impl Kernels,
-    ) -> bool {
-        let mut codes = 0u16;
+    ) {
         for (idx, (o, vox)) in out.iter_mut().zip(src).enumerate() {
             let alpha = t.opacity.get(vox.opacity);
             let [r, g, b, _] = t.color[vox.scalar as usize];
@@ -123,9 +116,7 @@ impl Shading for Shadowed<'_, '_> {
             }
             px[3] = alpha as u16;
             *o = px;
-            codes |= vox.normal;
         }
-        codes & ZERO_GRADIENT != 0
     }
 }
 
@@ -142,11 +133,15 @@ impl Shading for Mip {
         _: &SliceTables<'_>,
         _: i64,
         _: &impl Kernels,
-    ) -> bool {
+    ) {
         for (o, vox) in out.iter_mut().zip(src) {
             let g = fixed::from_u8(vox.scalar) as u16;
             *o = [g; 4];
         }
+    }
+
+    #[inline(always)]
+    fn shades(&self) -> bool {
         false
     }
 }
@@ -192,12 +187,17 @@ impl Shading for Way<'_, '_> {
         t: &SliceTables<'_>,
         j: i64,
         k: &impl Kernels,
-    ) -> bool {
+    ) {
         match self {
             Way::Lit => Lit.shade_run(out, src, first, t, j, k),
             Way::Cued(scale) => Cued(*scale).shade_run(out, src, first, t, j, k),
             Way::Shadowed(s) => s.shade_run(out, src, first, t, j, k),
             Way::Mip => Mip.shade_run(out, src, first, t, j, k),
         }
+    }
+
+    #[inline(always)]
+    fn shades(&self) -> bool {
+        !matches!(self, Way::Mip)
     }
 }
