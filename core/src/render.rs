@@ -664,6 +664,7 @@ mod tests {
     use crate::classify::{self, Grid, OpacityTf, Scalars, Voxel};
     use crate::composite::Intermediate;
     use crate::fixed::ONE;
+    use crate::normal;
     use crate::rle::{self, Axis, Layout, RleAxis, ScanIndex};
     use crate::shade::Lighting;
     use crate::source::RleVolume;
@@ -1020,6 +1021,92 @@ mod tests {
             }
         }
         assert_eq!(axes, [true; 3], "views along every axis");
+    }
+
+    /// Flat voxels left out of samples' colours change colours only: on a ball whose
+    /// core is a plateau (zero gradients) inside a shell with outward normals, lit, the
+    /// frames with flat voxels excluded and blended have the same opacity everywhere, in
+    /// parallel projection plain and supersampled and with shadows, and differ in colour
+    /// (the rule was applied). Without flat voxels the two are the same frame.
+    #[test]
+    fn excluding_flat_voxels_changes_colour_only() {
+        let grid = Grid::new([24, 22, 26], [1.0; 3]).unwrap();
+        let [nx, ny, nz] = grid.dims;
+        let c = [11.5, 10.5, 12.5];
+        let ball = |plateau: bool| -> Vec<Voxel> {
+            let mut v = Vec::with_capacity(nx * ny * nz);
+            for z in 0..nz {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        let d = [x as f64 - c[0], y as f64 - c[1], z as f64 - c[2]];
+                        let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                        let g = d.map(|e| (e * 64.0) as i64);
+                        v.push(match r {
+                            r if r < 6.0 => Voxel {
+                                opacity: 40,
+                                scalar: 200,
+                                normal: if plateau {
+                                    normal::ZERO_GRADIENT
+                                } else {
+                                    normal::encode(g[0], g[1], g[2] + 1)
+                                },
+                            },
+                            r if r < 9.0 => Voxel {
+                                opacity: 90,
+                                scalar: 120,
+                                normal: normal::encode(g[0], g[1], g[2]),
+                            },
+                            _ => Voxel::default(),
+                        });
+                    }
+                }
+            }
+            v
+        };
+        let color = ramp_colours();
+        let lighting = Lighting::default();
+        let settings = |flat_voxels, shadows| Settings {
+            mode: Mode::Composite,
+            color: &color,
+            lighting: Some(&lighting),
+            ert_threshold: 0.95,
+            depth_cue: None,
+            shadows,
+            flat_voxels,
+        };
+        let render = |dense: &[Voxel], flat, shadows: bool, s: usize| -> Vec<[u8; 4]> {
+            let store = encode_all(dense, &grid);
+            let mut vol = rle_volume(grid, &store);
+            let cam = view48(20.0, 35.0);
+            let (mut shade, mut shade0) = (ShadeTable::UNSHADED, ShadeTable::UNSHADED);
+            let st = settings(flat, shadows);
+            let frame = match shadows {
+                true => Frame::supersampled(&grid, &cam, &st, &mut shade, Some(&mut shade0), s),
+                false => Frame::supersampled(&grid, &cam, &st, &mut shade, None, s),
+            }
+            .unwrap();
+            render48(&mut vol, &frame, &mut shade, shadows.then_some(&mut shade0))
+        };
+        let (plateau, directed) = (ball(true), ball(false));
+        for (shadows, s) in [(false, 1), (false, 2), (true, 1)] {
+            let blended = render(&plateau, FlatVoxels::Blended, shadows, s);
+            let excluded = render(&plateau, FlatVoxels::Excluded, shadows, s);
+            assert!(
+                blended.iter().any(|p| p[3] > 100),
+                "shadows {shadows}, {s}x"
+            );
+            let alpha = |f: &[[u8; 4]]| f.iter().map(|p| p[3]).collect::<Vec<_>>();
+            assert_eq!(alpha(&blended), alpha(&excluded), "shadows {shadows}, {s}x");
+            assert!(
+                blended != excluded,
+                "the rule changed nothing: shadows {shadows}, {s}x"
+            );
+            assert_eq!(
+                render(&directed, FlatVoxels::Blended, shadows, s),
+                render(&directed, FlatVoxels::Excluded, shadows, s),
+                "no flat voxel: shadows {shadows}, {s}x"
+            );
+        }
     }
 
     /// A band composited up to some slice, split, and both parts composited from there
