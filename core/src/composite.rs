@@ -277,7 +277,7 @@ impl<'a> Intermediate<'a> {
 
 /// Row-buffer entries the compositor needs for slices `ni` voxels wide in parallel
 /// projection: two rows with a guard entry on each side, and each row's bits for its
-/// flat voxels ([`flat`]).
+/// flat voxels (see [`FlatVoxels`]), one per entry in 64-bit words.
 pub const fn row_buffer_len(ni: usize) -> usize {
     2 * (ni + 2) + 2 * flat::words(ni)
 }

@@ -9,9 +9,10 @@
 //! plateau's zero gradient adds nothing to the sum. Shading per voxel and interpolating
 //! the colours instead mixes the plateau's full light into it, which brightens the rims
 //! of flat-shelled objects at grazing angles (the nested spheres' silhouette: 39.96 dB
-//! against the reference ray caster this way, 40.46 dB with the rule, [`super::FlatVoxels::Excluded`]). No per-voxel
-//! direction for the flat voxels reproduces it: one taken from the neighbours darkens the
-//! face-on plateaus, which the reference shades fully lit.
+//! against the reference ray caster this way, 40.46 dB with the rule,
+//! [`super::FlatVoxels::Excluded`]). No per-voxel direction for the flat voxels
+//! reproduces it: one taken from the neighbours darkens the face-on plateaus, which the
+//! reference shades fully lit.
 //!
 //! A row keeps one bit per shaded voxel, set for flat ones, in words stored in the row
 //! buffer's tail ([`super::row_buffer_len`]). Most samples mix no flat voxel; those that
