@@ -986,7 +986,6 @@ fn over_run_flat(
     bl: usize,
     kern: &impl Kernels,
 ) -> u16 {
-    const H: u32 = 1 << 14;
     let mut highest = 0;
     for (c, chunk) in px.chunks_mut(64).enumerate() {
         let i0 = 64 * c;
@@ -1023,7 +1022,7 @@ fn over_run_flat(
             };
             let s = flat::resample(&[tt[0], tt[1], bb[0], bb[1]], w, flat::pixel(&f, i));
             let tr = ONE - k[3] as u32;
-            *p = core::array::from_fn(|c| (k[c] as u32 + ((s[c] * tr + H) >> 15)).min(ONE) as u16);
+            *p = core::array::from_fn(|c| (k[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16);
         }
     }
     highest

@@ -31,7 +31,7 @@ pub(crate) trait Kernels {
     /// instruction set: inlined into the band compositor instead, it made frames slower.
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error>;
     /// Composites a span of a scanline whose rows hold flat voxels
-    /// ([`super::over_span_flat_in`]) with these kernels, in a function of its own
+    /// ([`super::over_span_flat`]) with these kernels, in a function of its own
     /// compiled for the build's instruction set: out of line so that the common path's
     /// code stays as it was, and compiled for the build so that it still inlines them.
     fn over_span_flat(&self, span: FlatSpan<'_, '_>);

@@ -177,10 +177,25 @@ impl<'b> Row<'b> {
         self.written = 0;
     }
 
+    /// After `shading` shaded voxels `src` (`n` of them) into entries `x + 1..`: their
+    /// flat bits, when `t` excludes flat voxels from samples' colours and the way shades.
+    #[inline(always)]
+    fn note_flat(
+        &mut self,
+        x: usize,
+        src: &[Voxel],
+        n: usize,
+        t: &SliceTables<'_>,
+        shading: &impl Shading,
+    ) {
+        if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
+            self.mark_flat(x, src, n);
+        }
+    }
+
     /// Sets the flat bits of voxels `src` (as many as were shaded, `n`) at entries
-    /// `x + 1..`, with flat voxels excluded from samples' colours. A pass of its own over
-    /// the shaded voxels, out of line: asked in the shading loops instead, the test cost
-    /// the default way an instruction a voxel.
+    /// `x + 1..`. A pass of its own over the shaded voxels, out of line: asked in the
+    /// shading loops instead, the test cost the default way an instruction a voxel.
     #[inline(never)]
     fn mark_flat(&mut self, x: usize, src: &[Voxel], n: usize) {
         if !self.flat.is_empty() && flat::mark(self.flat, x + 1, src.get(..n).unwrap_or(src)) {
@@ -232,9 +247,7 @@ impl<'b> Row<'b> {
             return;
         };
         shading.shade_run(dst, src, x, t, j, k);
-        if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
-            self.mark_flat(x, src, y - x);
-        }
+        self.note_flat(x, src, y - x, t, shading);
         self.wrote(x + 1, y + 1);
         self.dirty = match self.extent() {
             Some((lo, hi)) => (lo.min(x + 1), hi.max(y + 1)),
@@ -280,9 +293,7 @@ impl<'b> Row<'b> {
                         continue;
                     };
                     shading.shade_run(dst, src, a, t, j, k);
-                    if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
-                        self.mark_flat(a, src, b - a);
-                    }
+                    self.note_flat(a, src, b - a, t, shading);
                     self.wrote(a + 1, b + 1);
                 }
                 Some(n) => {
@@ -315,9 +326,7 @@ impl<'b> Row<'b> {
                                 continue;
                             };
                             shading.shade_run(dst, src, c, t, j, k);
-                            if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
-                                self.mark_flat(c, src, d - c);
-                            }
+                            self.note_flat(c, src, d - c, t, shading);
                             self.wrote(c + 1, d + 1);
                         }
                     }
