@@ -22,15 +22,15 @@ mod shading;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) use kernels::{
-    by_steps, closed_bits, closed_bits_avx2, highest, over_run, over_run_simd, over_run_unranked,
-    premultiply, premultiply_sse41, With,
+    by_steps, closed_bits, closed_bits_avx2, flat_bits, flat_bits_avx2, highest, over_run,
+    over_run_simd, over_run_unranked, premultiply, premultiply_sse41, With,
 };
 pub(crate) use kernels::{Kernels, Portable};
 pub(crate) use row::{MergedSpans, Row, Spans};
 use row::{Needed, Reach};
 #[cfg(target_arch = "x86_64")]
-pub(crate) use shading::{Cued, Lit, Mip};
-pub(crate) use shading::{Shading, Way};
+pub(crate) use shading::{Cued, ExcludingFlat, Lit, Mip};
+pub(crate) use shading::{FlatRule, Shading, Way};
 
 use crate::classify::{ColorLanes, Voxel};
 use crate::error::{need, Error};
@@ -372,6 +372,10 @@ pub(crate) fn composite_slice_in(
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let way = Way::of(tables, shadow, scale);
     #[cfg(target_arch = "x86_64")]
+    if way.excludes_flat(tables) {
+        return kern.composite_flat(job, way);
+    }
+    #[cfg(target_arch = "x86_64")]
     match way {
         Way::Lit => composite_rows(job, kern, &Lit),
         Way::Cued(scale) => composite_rows(job, kern, &Cued(scale)),
@@ -382,12 +386,46 @@ pub(crate) fn composite_slice_in(
     composite_rows(job, kern, &way)
 }
 
-/// The scanline loop of [`composite_slice_in`] for one [`Shading`].
-#[cfg_attr(target_arch = "x86_64", inline(always))]
-fn composite_rows(
+/// [`composite_rows`] for a slice shaded `way` with flat voxels excluded from samples'
+/// colours ([`FlatVoxels::Excluded`]): the slice loop of [`ExcludingFlat`] ways, which
+/// marks the rows' flat voxels and composites the spans they reach inline. Targets
+/// that compile one loop for every way apply the rule in it instead, as the tables
+/// ask ([`shading::FlatRule::AsAsked`]): a second loop there took 15 KB more flash
+/// on the Cortex-M3, and changed how the first was compiled (1 % more instructions a
+/// frame).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn composite_rows_excluding(
     job: SliceJob<'_, '_>,
     kern: &impl Kernels,
-    shading: &impl Shading,
+    way: Way<'_, '_>,
+) -> Result<(), Error> {
+    match way {
+        Way::Lit => composite_rows(job, kern, &ExcludingFlat(Lit)),
+        Way::Cued(scale) => composite_rows(job, kern, &ExcludingFlat(Cued(scale))),
+        Way::Shadowed(s) => composite_rows(job, kern, &ExcludingFlat(s)),
+        // MIP has no shading, so no flat voxels to exclude.
+        Way::Mip => composite_rows(job, kern, &Mip),
+    }
+}
+
+/// [`composite_rows_excluding`] with the portable kernels, in a function of its own:
+/// [`Kernels::composite_flat`] of [`Portable`].
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+pub(crate) fn composite_flat_portable(
+    job: SliceJob<'_, '_>,
+    way: Way<'_, '_>,
+) -> Result<(), Error> {
+    composite_rows_excluding(job, &Portable, way)
+}
+
+/// The scanline loop of [`composite_slice_in`] for one [`Shading`].
+#[cfg_attr(target_arch = "x86_64", inline(always))]
+fn composite_rows<S: Shading>(
+    job: SliceJob<'_, '_>,
+    kern: &impl Kernels,
+    shading: &S,
 ) -> Result<(), Error> {
     let SliceJob {
         img,
@@ -548,18 +586,21 @@ fn composite_rows(
                     n: ou.n,
                     w,
                 };
-                // Rows with flat voxels (only ever marked in composite mode) go to a
-                // compositor of their own, out of line: the common path stays as it was
-                // without them.
-                if top.has_flat || bot.has_flat {
-                    kern.over_span_flat(FlatSpan {
-                        pixels,
-                        opaque,
-                        taps,
-                        flat: (top.flat, bot.flat),
-                        us: ua..ub,
-                        ert: tables.ert,
-                    });
+                // Rows with flat voxels (only ever marked in composite mode, and only
+                // by ways that may exclude them: a compile-time constant, so the loops
+                // of the others hold no such path) go to a compositor of their own.
+                if S::FLAT != FlatRule::Never && (top.has_flat || bot.has_flat) {
+                    over_span_flat(
+                        FlatSpan {
+                            pixels,
+                            opaque,
+                            taps,
+                            flat: (top.flat, bot.flat),
+                            us: ua..ub,
+                            ert: tables.ert,
+                        },
+                        kern,
+                    );
                 } else {
                     composite_span(pixels, opaque, &taps, ua..ub, tables, kern);
                 }
@@ -928,9 +969,19 @@ pub(crate) fn over_span_flat(span: FlatSpan<'_, '_>, kern: &impl Kernels) {
         us,
         ert,
     } = span;
-    over_runs(pixels, opaque, &taps, us, ert, kern, |px, top, bot, bl| {
-        over_run_flat(px, top, bot, taps.w, flat, bl, kern)
-    })
+    // The pixels of a chunk composited again, as they were before the kernel: one
+    // array a span, zeroed once.
+    let mut kept = [[0u16; 4]; 64];
+    over_runs(
+        pixels,
+        opaque,
+        &taps,
+        us,
+        ert,
+        kern,
+        #[inline(always)]
+        |px, top, bot, bl| over_run_flat(px, top, bot, taps.w, flat, bl, &mut kept, kern),
+    )
 }
 
 /// The loop of [`over_span`] over the open runs of the span, each composited by `run`
@@ -973,10 +1024,12 @@ fn over_runs(
 
 /// [`Kernels::over_run`] for a run reading entries `bl..` of rows that hold flat voxels
 /// (bits `ft`, `fb`): 64 pixels at a time, the pixels whose taps may mix flat and other
-/// voxels ([`flat::mixed`]) are kept as they were, the rest composited by the kernel,
-/// and those pixels composited again from where they were with [`flat::resample`]. The
-/// rule changes a sample's colour only, so the kernel's highest opacity still holds.
+/// voxels ([`flat::mixed`]) are kept in `kept` as they were, the rest composited by the
+/// kernel, and those whose colour the rule changes ([`flat::recolour`]) composited
+/// again from where they were. The rule changes a sample's colour only, so the kernel's
+/// opacity and highest opacity still hold.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn over_run_flat(
     px: &mut [Rgba],
     top: &[Rgba],
@@ -984,6 +1037,7 @@ fn over_run_flat(
     w: [u32; 4],
     (ft, fb): (&[Rgba], &[Rgba]),
     bl: usize,
+    kept: &mut [Rgba; 64],
     kern: &impl Kernels,
 ) -> u16 {
     let mut highest = 0;
@@ -998,7 +1052,6 @@ fn over_run_flat(
             highest = highest.max(kern.over_run(chunk, t, b, w));
             continue;
         }
-        let mut kept = [[0u16; 4]; 64];
         let mut m = mixed;
         while m != 0 {
             let i = m.trailing_zeros() as usize;
@@ -1020,9 +1073,13 @@ fn over_run_flat(
             ) else {
                 break;
             };
-            let s = flat::resample(&[tt[0], tt[1], bb[0], bb[1]], w, flat::pixel(&f, i));
-            let tr = ONE - k[3] as u32;
-            *p = core::array::from_fn(|c| (k[c] as u32 + fixed::mul(s[c], tr)).min(ONE) as u16);
+            let taps = [tt[0], tt[1], bb[0], bb[1]];
+            if let Some(col) = flat::recolour(&taps, w, flat::pixel(&f, i)) {
+                let tr = ONE - k[3] as u32;
+                for c in 0..3 {
+                    p[c] = (k[c] as u32 + fixed::mul(col[c], tr)).min(ONE) as u16;
+                }
+            }
         }
     }
     highest
@@ -1330,11 +1387,15 @@ mod tests {
         fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
             closed_bits(px, thr)
         }
+        fn flat_bits(&self, voxels: &[Voxel]) -> u64 {
+            flat_bits(voxels)
+        }
         fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
             crate::perspective::composite_slice(job, self)
         }
-        fn over_span_flat(&self, span: FlatSpan<'_, '_>) {
-            over_span_flat(span, self)
+        #[cfg(target_arch = "x86_64")]
+        fn composite_flat(&self, job: SliceJob<'_, '_>, way: Way<'_, '_>) -> Result<(), Error> {
+            composite_rows_excluding(job, self, way)
         }
     }
 

@@ -339,22 +339,22 @@ macro_rules! band_compositor {
 
 /// Defines an instruction-set build `$name` of the band compositor, compiled with the
 /// target features `$features`, whose kernels are `[$warm, $premultiply, $over,
-/// $closed]` ([`composite::With`]), and beside it `$persp` and `$flat`: the perspective
+/// $closed, $bits]` ([`composite::With`]), and beside it `$persp` and `$flat`: the perspective
 /// slice compositor and the compositor of spans whose rows hold flat voxels, compiled
 /// with the same features and kernels, each in a function of its own
-/// ([`composite::Kernels::perspective`], [`composite::Kernels::over_span_flat`]).
+/// ([`composite::Kernels::perspective`], [`composite::Kernels::composite_flat`]).
 #[cfg(target_arch = "x86_64")]
 macro_rules! isa_band_compositor {
     (
         $(#[$attr:meta])*
         $name:ident, $persp:ident, $flat:ident, $features:literal,
-        [$warm:expr, $premultiply:expr, $over:expr, $closed:expr $(,)?]
+        [$warm:expr, $premultiply:expr, $over:expr, $closed:expr, $bits:expr $(,)?]
     ) => {
         band_compositor! {
             $(#[$attr])*
             #[target_feature(enable = $features)]
             $name,
-            &isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed)
+            &isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits)
         }
 
         #[doc = concat!(
@@ -363,18 +363,21 @@ macro_rules! isa_band_compositor {
         #[target_feature(enable = $features)]
         #[inline(never)]
         fn $persp(job: composite::SliceJob<'_, '_>) -> Result<(), Error> {
-            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed);
+            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits);
             crate::perspective::composite_slice_in(job, &kern)
         }
 
         #[doc = concat!(
-            "[`composite::over_span_flat`] as [`", stringify!($name), "`] builds it."
+            "[`composite::composite_rows_excluding`] as [`", stringify!($name), "`] builds it."
         )]
         #[target_feature(enable = $features)]
         #[inline(never)]
-        fn $flat(span: composite::FlatSpan<'_, '_>) {
-            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed);
-            composite::over_span_flat(span, &kern)
+        fn $flat(
+            job: composite::SliceJob<'_, '_>,
+            way: composite::Way<'_, '_>,
+        ) -> Result<(), Error> {
+            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits);
+            composite::composite_rows_excluding(job, &kern, way)
         }
     };
 }
@@ -384,14 +387,18 @@ macro_rules! isa_band_compositor {
 /// call `$persp` and `$flat`.
 #[cfg(target_arch = "x86_64")]
 macro_rules! isa_kernels {
-    ($persp:ident, $flat:ident, $warm:expr, $premultiply:expr, $over:expr, $closed:expr) => {
+    (
+        $persp:ident, $flat:ident, $warm:expr, $premultiply:expr, $over:expr, $closed:expr,
+        $bits:expr
+    ) => {
         composite::With(
             $warm,
             $premultiply,
             $over,
             $closed,
+            $bits,
             |job: composite::SliceJob<'_, '_>| $persp(job),
-            |span: composite::FlatSpan<'_, '_>| $flat(span),
+            |job: composite::SliceJob<'_, '_>, way: composite::Way<'_, '_>| $flat(job, way),
         )
     };
 }
@@ -431,13 +438,14 @@ isa_band_compositor! {
     /// function is `unsafe` to call only because it enables target features.
     composite_band_until_x86_64,
     perspective_x86_64,
-    over_span_flat_x86_64,
+    composite_flat_x86_64,
     "sse,sse2",
     [
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply,
         composite::over_run_unranked,
         composite::closed_bits,
+        composite::flat_bits,
     ]
 }
 
@@ -463,13 +471,14 @@ isa_band_compositor! {
     /// (the file frontend's `isa` module does).
     composite_band_until_x86_v3,
     perspective_x86_v3,
-    over_span_flat_x86_v3,
+    composite_flat_x86_v3,
     "avx2,bmi1,bmi2,fma,lzcnt,popcnt",
     [
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply_sse41!(),
         composite::over_run_simd!(avx2),
         composite::closed_bits_avx2!(),
+        composite::flat_bits_avx2!(),
     ]
 }
 
@@ -484,13 +493,14 @@ isa_band_compositor! {
     /// As for [`composite_band_until_x86_v3`], with the AVX-512 features too.
     composite_band_until_x86_v4,
     perspective_x86_v4,
-    over_span_flat_x86_v4,
+    composite_flat_x86_v4,
     "avx2,bmi1,bmi2,fma,lzcnt,popcnt,avx512f,avx512bw,avx512vl,avx512dq,avx512cd",
     [
         |v: &[Voxel]| prefetch!(v),
         composite::premultiply_sse41!(),
         composite::over_run_simd!(avx512),
         composite::closed_bits_avx2!(),
+        composite::flat_bits_avx2!(),
     ]
 }
 

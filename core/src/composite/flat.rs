@@ -21,7 +21,6 @@
 
 use super::Rgba;
 use crate::classify::Voxel;
-use crate::normal::ZERO_GRADIENT;
 
 /// Words of flat bits a row of `ni` voxels needs: one bit per buffer entry (`ni + 2`),
 /// and one word more, so that 64 bits read from any entry's bit stay inside.
@@ -35,18 +34,19 @@ fn load(w: &Rgba) -> u64 {
     bytemuck::cast(*w)
 }
 
-/// Sets bit `at + i` of `words` for each flat voxel `src[i]`; true if any was. Bits past
-/// the words are not set (the rows are sized so there are none).
-#[inline]
-pub(crate) fn mark(words: &mut [Rgba], at: usize, src: &[Voxel]) -> bool {
+/// Sets bit `at + i` of `words` for each flat voxel `src[i]`, found 64 at a time by
+/// `flat_bits` ([`super::Kernels::flat_bits`]); true if any was. Bits past the words are
+/// not set (the rows are sized so there are none).
+#[inline(always)]
+pub(crate) fn mark(
+    words: &mut [Rgba],
+    at: usize,
+    src: &[Voxel],
+    flat_bits: impl Fn(&[Voxel]) -> u64,
+) -> bool {
     let mut any = false;
     for (c, chunk) in src.chunks(64).enumerate() {
-        // Last voxel first, each shifting the ones before it up: a shift by one a voxel
-        // rather than one by the voxel's index, which baseline x86-64 takes through `cl`.
-        let m = chunk
-            .iter()
-            .rev()
-            .fold(0u64, |m, v| m << 1 | (v.normal == ZERO_GRADIENT) as u64);
+        let m = flat_bits(chunk);
         if m != 0 {
             any = true;
             let pos = at + 64 * c;
@@ -62,18 +62,6 @@ pub(crate) fn mark(words: &mut [Rgba], at: usize, src: &[Voxel]) -> bool {
         }
     }
     any
-}
-
-/// The 64 bits of `words` from bit `pos` on (zero past the end).
-#[inline(always)]
-pub(crate) fn bits(words: &[Rgba], pos: usize) -> u64 {
-    let (q, r) = (pos / 64, pos % 64);
-    let lo = words.get(q).map_or(0, load) >> r;
-    let hi = match r {
-        0 => 0,
-        _ => words.get(q + 1).map_or(0, load) << (64 - r),
-    };
-    lo | hi
 }
 
 /// Bit `pos` of `words`.
@@ -98,12 +86,16 @@ pub(crate) fn taps(top: &[Rgba], bot: &[Rgba], bl: usize) -> u32 {
 /// bottom-right.
 #[inline(always)]
 pub(crate) fn tap_words(top: &[Rgba], bot: &[Rgba], bl: usize) -> [u64; 4] {
-    [
-        bits(top, bl),
-        bits(top, bl + 1),
-        bits(bot, bl),
-        bits(bot, bl + 1),
-    ]
+    // The 65 bits from `bl` on of each row, as one 128-bit shift of two words: a left
+    // and a right tap are the same bits one apart.
+    let window = |words: &[Rgba]| {
+        let (q, r) = (bl / 64, bl % 64);
+        let lo = words.get(q).map_or(0, load) as u128;
+        let hi = words.get(q + 1).map_or(0, load) as u128;
+        (lo | hi << 64) >> r
+    };
+    let (t, b) = (window(top), window(bot));
+    [t as u64, (t >> 1) as u64, b as u64, (b >> 1) as u64]
 }
 
 /// Of the `n <= 64` pixels whose taps have flat bits `f` ([`tap_words`]), those whose
@@ -141,17 +133,29 @@ pub(crate) fn sample(t: &[Rgba; 4], w: [u32; 4]) -> [u32; 4] {
 /// [`sample`], with the rule for flat voxels: when a tap with weight and opacity is flat
 /// (bit `i` of `flat`) and another with weight and opacity is not, the colour is the
 /// non-flat taps' weighted colour scaled to the sample's opacity, `Σ' wᵢcᵢ · α / Σ' wᵢαᵢ`
-/// over the non-flat taps. Otherwise, and always for the opacity, it is [`sample`].
-///
-/// The sums are taken two channels to a 64-bit word (red and blue, green and opacity,
-/// each in a 32-bit field), over all taps and over the non-flat ones, without branches
-/// but the one on whether the rule applies: written per channel, the compiler kept the
-/// channels in scalar registers (spheres256, callgrind: 57 instructions a sample for
-/// the products alone).
+/// over the non-flat taps ([`recolour`]). Otherwise, and always for the opacity, it is
+/// [`sample`].
 #[inline(always)]
 pub(crate) fn resample(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> [u32; 4] {
+    let mut s = sample(t, w);
+    if let Some(c) = recolour(t, w, flat) {
+        s[..3].copy_from_slice(&c);
+    }
+    s
+}
+
+/// The colour [`resample`] gives taps `t` with weights `w` and flat bits `flat` when the
+/// rule applies, `None` when it does not (the sample is then [`sample`]'s).
+///
+/// The sums are taken two channels to a 64-bit word (red and blue, green and opacity,
+/// each in a 32-bit field), over the non-flat taps, and the opacity over all of them,
+/// without branches but the one on whether the rule applies: written per channel, the
+/// compiler kept the channels in scalar registers (spheres256, callgrind: 57
+/// instructions a sample for the products alone).
+#[inline(always)]
+pub(crate) fn recolour(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> Option<[u32; 3]> {
     const FIELDS: u64 = 0x0000_ffff_0000_ffff;
-    let (mut all, mut kept) = ([0u64; 2], [0u64; 2]);
+    let (mut kept, mut all) = ([0u64; 2], 0u64);
     for i in 0..4 {
         let v: u64 = bytemuck::cast(t[i]);
         // Each field's product is at most 2^30, and so is its sum over the taps: the
@@ -160,33 +164,32 @@ pub(crate) fn resample(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> [u32; 4] {
         let x = [(v & FIELDS) * w[i] as u64, (v >> 16 & FIELDS) * w[i] as u64];
         // All ones for a tap with a direction, zero for a flat one.
         let keep = (flat as u64 >> i & 1).wrapping_sub(1);
-        for h in 0..2 {
-            all[h] += x[h];
-            kept[h] += x[h] & keep;
-        }
+        kept[0] += x[0] & keep;
+        kept[1] += x[1] & keep;
+        all += x[1];
     }
     let lane = |p: &[u64; 2], c: usize| (p[c & 1] >> (32 * (c >> 1))) as u32;
-    let mut s: [u32; 4] = core::array::from_fn(|c| (lane(&all, c) + (1 << 14)) >> 15);
     let an = lane(&kept, 3);
-    if an == 0 || an == lane(&all, 3) {
-        return s;
+    let aa = (all >> 32) as u32;
+    if an == 0 || an == aa {
+        return None;
     }
     // α / Σ' wᵢαᵢ in Q32 (α Q15, the sum Q30). Premultiplied colours are at most their
     // opacity, so Σ' wᵢcᵢ ≤ Σ' wᵢαᵢ (held to it for tables that break the rule) and each
     // product below is at most α·2^32 < 2^49.
-    let alpha = s[3] as u64;
+    let alpha = ((aa + (1 << 14)) >> 15) as u64;
     let ratio = (alpha << 32) / an as u64;
-    for (c, x) in s.iter_mut().take(3).enumerate() {
+    Some(core::array::from_fn(|c| {
         let kc = lane(&kept, c).min(an) as u64;
-        *x = ((kc * ratio + (1 << 31)) >> 32).min(alpha) as u32;
-    }
-    s
+        ((kc * ratio + (1 << 31)) >> 32).min(alpha) as u32
+    }))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::fixed::{bilinear_weights, ONE};
+    use crate::normal::ZERO_GRADIENT;
 
     #[test]
     fn marked_bits_read_back_at_any_offset() {
@@ -206,15 +209,20 @@ mod tests {
                     },
                 })
                 .collect();
-            let any = mark(&mut words, at, &src);
+            let any = mark(&mut words, at, &src, crate::composite::kernels::flat_bits);
             assert_eq!(any, src.iter().any(|v| v.normal == ZERO_GRADIENT));
             for pos in 0..6 * 64 {
                 let want = pos >= at && pos < at + n && src[pos - at].normal == ZERO_GRADIENT;
                 assert_eq!(bit(&words, pos), want, "bit {pos}, at {at}, n {n}");
             }
+            // Read back 64 at a time from any entry, as the taps' words, up to and past
+            // the words' end (zero there).
             for pos in 0..6 * 64 {
-                let want = (0..64).fold(0u64, |m, i| m | (bit(&words, pos + i) as u64) << i);
-                assert_eq!(bits(&words, pos), want);
+                let window =
+                    |from| (0..64).fold(0u64, |m, i| m | (bit(&words, from + i) as u64) << i);
+                let f = tap_words(&words, &words, pos);
+                assert_eq!(f[0], window(pos));
+                assert_eq!(f[1], window(pos + 1));
             }
         }
     }

@@ -3,10 +3,13 @@
 //! closed. The portable versions are the reference every vector version is tested
 //! against bit for bit.
 
-use super::{FlatSpan, Rgba, SliceJob};
+#[cfg(target_arch = "x86_64")]
+use super::Way;
+use super::{Rgba, SliceJob};
 use crate::classify::Voxel;
 use crate::error::Error;
 use crate::fixed::{self, ONE};
+use crate::normal::ZERO_GRADIENT;
 use crate::shade::ShadeEntry;
 
 /// The steps an instruction-set build of the compositor may replace (see
@@ -26,15 +29,22 @@ pub(crate) trait Kernels {
     /// Bit `i` set where pixel `px[i]` (at most 64 pixels) reached opacity `thr`
     /// (`thr >= 1`): [`closed_bits`] or a bit-identical vector version.
     fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64;
+    /// Bit `i` set for each flat voxel `voxels[i]` (at most 64 voxels, [`super::flat`]):
+    /// [`flat_bits`] or a bit-identical vector version.
+    fn flat_bits(&self, voxels: &[Voxel]) -> u64;
     /// Composites a slice of a perspective view ([`crate::perspective::composite_slice`])
     /// with these kernels, in a function of its own compiled for the build's
     /// instruction set: inlined into the band compositor instead, it made frames slower.
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error>;
-    /// Composites a span of a scanline whose rows hold flat voxels
-    /// ([`super::over_span_flat`]) with these kernels, in a function of its own
-    /// compiled for the build's instruction set: out of line so that the common path's
-    /// code stays as it was, and compiled for the build so that it still inlines them.
-    fn over_span_flat(&self, span: FlatSpan<'_, '_>);
+    /// Composites a slice with flat voxels excluded from samples' colours, shaded
+    /// `way` ([`super::composite_rows_excluding`]), with these kernels, in a function
+    /// of its own compiled for the build's instruction set: a slice loop of its own, so
+    /// that the default one's code stays as it was, which inlines the flat voxels'
+    /// marking and compositing. Inlined into the band compositor beside the default
+    /// loops, it made those take more instructions (spheres256, callgrind: 1.6 % a
+    /// frame).
+    #[cfg(target_arch = "x86_64")]
+    fn composite_flat(&self, job: SliceJob<'_, '_>, way: Way<'_, '_>) -> Result<(), Error>;
 }
 
 /// The portable kernels: [`touch`], [`premultiply`], [`closed_bits`] and [`over_run`],
@@ -61,12 +71,17 @@ impl Kernels for Portable {
         closed_bits(px, thr)
     }
     #[inline(always)]
+    fn flat_bits(&self, voxels: &[Voxel]) -> u64 {
+        flat_bits(voxels)
+    }
+    #[inline(always)]
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
         crate::perspective::composite_slice(job, self)
     }
+    #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn over_span_flat(&self, span: FlatSpan<'_, '_>) {
-        super::over_span_flat(span, self)
+    fn composite_flat(&self, job: SliceJob<'_, '_>, way: Way<'_, '_>) -> Result<(), Error> {
+        super::composite_flat_portable(job, way)
     }
 }
 
@@ -75,17 +90,18 @@ impl Kernels for Portable {
 /// vector intrinsics those features make safe). Only the x86-64 builds have such
 /// functions.
 #[cfg(target_arch = "x86_64")]
-pub(crate) struct With<W, P, O, C, S, F>(pub W, pub P, pub O, pub C, pub S, pub F);
+pub(crate) struct With<W, P, O, C, B, S, F>(pub W, pub P, pub O, pub C, pub B, pub S, pub F);
 
 #[cfg(target_arch = "x86_64")]
-impl<W, P, O, C, S, F> Kernels for With<W, P, O, C, S, F>
+impl<W, P, O, C, B, S, F> Kernels for With<W, P, O, C, B, S, F>
 where
     W: Fn(&[Voxel]),
     P: Fn(&[u16; 4], &ShadeEntry, u32) -> Rgba,
     O: Fn(&mut [Rgba], &[Rgba], &[Rgba], [u32; 4]) -> u16,
     C: Fn(&[Rgba], u32) -> u64,
+    B: Fn(&[Voxel]) -> u64,
     S: Fn(SliceJob<'_, '_>) -> Result<(), Error>,
-    F: Fn(FlatSpan<'_, '_>),
+    F: Fn(SliceJob<'_, '_>, Way<'_, '_>) -> Result<(), Error>,
 {
     #[inline(always)]
     fn warm(&self, voxels: &[Voxel]) {
@@ -104,12 +120,16 @@ where
         (self.3)(px, thr)
     }
     #[inline(always)]
-    fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
-        (self.4)(job)
+    fn flat_bits(&self, voxels: &[Voxel]) -> u64 {
+        (self.4)(voxels)
     }
     #[inline(always)]
-    fn over_span_flat(&self, span: FlatSpan<'_, '_>) {
-        (self.5)(span)
+    fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
+        (self.5)(job)
+    }
+    #[inline(always)]
+    fn composite_flat(&self, job: SliceJob<'_, '_>, way: Way<'_, '_>) -> Result<(), Error> {
+        (self.6)(job, way)
     }
 }
 
@@ -377,6 +397,51 @@ macro_rules! closed_bits_avx2 {
 }
 #[cfg(target_arch = "x86_64")]
 pub(crate) use closed_bits_avx2;
+
+/// Bit `i` set for each flat voxel `voxels[i]` (of at most 64; a zero gradient,
+/// [`crate::normal::ZERO_GRADIENT`]), voxel by voxel: last voxel first, each shifting
+/// the ones before it up (a shift by one a voxel rather than one by the voxel's index).
+#[inline(always)]
+pub(crate) fn flat_bits(voxels: &[Voxel]) -> u64 {
+    voxels
+        .iter()
+        .take(64)
+        .rev()
+        .fold(0u64, |m, v| m << 1 | (v.normal == ZERO_GRADIENT) as u64)
+}
+
+/// [`flat_bits`] in AVX2 for each whole 32 voxels: a byte a voxel, all ones for a flat
+/// one, in a loop the compiler vectorises, then the bytes' mask; the voxels after them
+/// one by one. A loop over the bytes of any count left its last voxels to a scalar
+/// loop, and the vector load of bytes just stored one at a time waited for them (the
+/// x86-64-v4 build: 5 % of spheres256's frame on that load's test). A macro expanding
+/// to a closure, written inside the x86-64-v3 and v4 compositors (see
+/// [`premultiply_sse41`]).
+#[cfg(target_arch = "x86_64")]
+macro_rules! flat_bits_avx2 {
+    () => {
+        |voxels: &[$crate::classify::Voxel]| -> u64 {
+            use core::arch::x86_64::*;
+            let voxels = &voxels[..voxels.len().min(64)];
+            let mut blocks = voxels.chunks_exact(32);
+            let mut m = 0u64;
+            for (b, block) in blocks.by_ref().enumerate() {
+                let mut flags = [0u8; 32];
+                for (f, v) in flags.iter_mut().zip(block) {
+                    *f = 0u8.wrapping_sub((v.normal == $crate::normal::ZERO_GRADIENT) as u8);
+                }
+                m |= (_mm256_movemask_epi8(bytemuck::cast(flags)) as u32 as u64) << (32 * b);
+            }
+            let rest = blocks.remainder();
+            match voxels.len() - rest.len() {
+                64 => m,
+                at => m | $crate::composite::flat_bits(rest) << at,
+            }
+        }
+    };
+}
+#[cfg(target_arch = "x86_64")]
+pub(crate) use flat_bits_avx2;
 
 /// Resamples `top`/`bot` (one entry longer than `px`) with weights `w` and composites
 /// the result under `px`. A zero sample leaves a pixel unchanged (`p + 0·(1 − α) = p`),

@@ -6,7 +6,7 @@
 //! row is never read, so [`Needed`] tells a row, from the opaque-pixel bitmaps of those
 //! two scanlines, which voxels to shade and whether to shade it at all.
 
-use super::{flat, row_buffer_len, FlatVoxels, Intermediate, Kernels, Rgba, Shading, SliceTables};
+use super::{flat, row_buffer_len, FlatRule, Intermediate, Kernels, Rgba, Shading, SliceTables};
 use crate::classify::Voxel;
 use crate::opaque;
 
@@ -178,27 +178,43 @@ impl<'b> Row<'b> {
     }
 
     /// After `shading` shaded voxels `src` (`n` of them) into entries `x + 1..`: their
-    /// flat bits, when `t` excludes flat voxels from samples' colours and the way shades.
+    /// flat bits, when the way excludes flat voxels from samples' colours.
     #[inline(always)]
-    fn note_flat(
+    #[allow(clippy::too_many_arguments)]
+    fn note_flat<S: Shading>(
         &mut self,
         x: usize,
         src: &[Voxel],
         n: usize,
         t: &SliceTables<'_>,
-        shading: &impl Shading,
+        shading: &S,
+        k: &impl Kernels,
     ) {
-        if t.flat_voxels == FlatVoxels::Excluded && shading.shades() {
-            self.mark_flat(x, src, n);
+        match S::FLAT {
+            FlatRule::Never => {}
+            FlatRule::Always => self.mark_flat(x, src, n, k),
+            FlatRule::AsAsked => {
+                if shading.excludes_flat(t) {
+                    self.mark_flat_out_of_line(x, src, n, k);
+                }
+            }
         }
     }
 
-    /// Sets the flat bits of voxels `src` (as many as were shaded, `n`) at entries
-    /// `x + 1..`. A pass of its own over the shaded voxels, out of line: asked in the
-    /// shading loops instead, the test cost the default way an instruction a voxel.
+    /// [`Row::mark_flat`] out of line, for a loop that asks the tables which rule they
+    /// want ([`FlatRule::AsAsked`]).
     #[inline(never)]
-    fn mark_flat(&mut self, x: usize, src: &[Voxel], n: usize) {
-        if !self.flat.is_empty() && flat::mark(self.flat, x + 1, src.get(..n).unwrap_or(src)) {
+    fn mark_flat_out_of_line(&mut self, x: usize, src: &[Voxel], n: usize, k: &impl Kernels) {
+        self.mark_flat(x, src, n, k)
+    }
+
+    /// Sets the flat bits of voxels `src` (as many as were shaded, `n`) at entries
+    /// `x + 1..`: a pass of its own over the shaded voxels (asked in the shading loops
+    /// instead, the test cost the default way an instruction a voxel).
+    #[inline(always)]
+    fn mark_flat(&mut self, x: usize, src: &[Voxel], n: usize, k: &impl Kernels) {
+        let src = src.get(..n).unwrap_or(src);
+        if !self.flat.is_empty() && flat::mark(self.flat, x + 1, src, |v| k.flat_bits(v)) {
             self.has_flat = true;
         }
     }
@@ -247,7 +263,7 @@ impl<'b> Row<'b> {
             return;
         };
         shading.shade_run(dst, src, x, t, j, k);
-        self.note_flat(x, src, y - x, t, shading);
+        self.note_flat(x, src, y - x, t, shading, k);
         self.wrote(x + 1, y + 1);
         self.dirty = match self.extent() {
             Some((lo, hi)) => (lo.min(x + 1), hi.max(y + 1)),
@@ -293,7 +309,7 @@ impl<'b> Row<'b> {
                         continue;
                     };
                     shading.shade_run(dst, src, a, t, j, k);
-                    self.note_flat(a, src, b - a, t, shading);
+                    self.note_flat(a, src, b - a, t, shading, k);
                     self.wrote(a + 1, b + 1);
                 }
                 Some(n) => {
@@ -326,7 +342,7 @@ impl<'b> Row<'b> {
                                 continue;
                             };
                             shading.shade_run(dst, src, c, t, j, k);
-                            self.note_flat(c, src, d - c, t, shading);
+                            self.note_flat(c, src, d - c, t, shading, k);
                             self.wrote(c + 1, d + 1);
                         }
                     }

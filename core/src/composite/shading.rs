@@ -1,7 +1,7 @@
 //! How a slice's voxels become premultiplied colours in a row buffer: lit, depth-cued,
 //! shadowed or as MIP's grey, chosen once per slice.
 
-use super::{Kernels, Mode, Rgba, SliceTables};
+use super::{FlatVoxels, Kernels, Mode, Rgba, SliceTables};
 use crate::classify::Voxel;
 use crate::fixed::{self, ONE};
 use crate::shade::ShadeTable;
@@ -32,6 +32,57 @@ pub(crate) trait Shading {
     fn shades(&self) -> bool {
         true
     }
+
+    /// Where this way's slice loop applies the rule for flat voxels: a constant, so the
+    /// loops of ways that never do hold none of it.
+    const FLAT: FlatRule = FlatRule::Never;
+
+    /// Whether rows shaded this way under tables `t` keep flat bits and composite by the
+    /// rule for flat voxels ([`super::FlatVoxels::Excluded`]): as [`Self::FLAT`] says,
+    /// and for [`Way`] as the tables ask.
+    #[inline(always)]
+    fn excludes_flat(&self, _: &SliceTables<'_>) -> bool {
+        Self::FLAT == FlatRule::Always
+    }
+}
+
+/// Where a way's slice loop applies the rule for flat voxels ([`super::flat`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum FlatRule {
+    /// Never: the way blends flat voxels like the others (the ways the x86-64 builds
+    /// compile a loop for each, and MIP's).
+    Never,
+    /// As the slice's tables ask ([`Way`]: one loop for both rules, on targets that
+    /// compile one, and in the supersampled compositor). The rows' flat voxels are
+    /// marked out of line, so that the loop's common path stays as it was.
+    AsAsked,
+    /// Always ([`ExcludingFlat`]), with the marking inline.
+    Always,
+}
+
+/// Way `S` with flat voxels excluded from samples' colours
+/// ([`super::FlatVoxels::Excluded`]), as a way of its own: its slice loop
+/// ([`super::composite_rows_excluding`]) is compiled apart from the default ones, and
+/// inlines the marking of flat voxels and the compositing of the rows that hold them.
+#[cfg(target_arch = "x86_64")]
+pub(crate) struct ExcludingFlat<S>(pub S);
+
+#[cfg(target_arch = "x86_64")]
+impl<S: Shading> Shading for ExcludingFlat<S> {
+    #[inline(always)]
+    fn shade_run(
+        &self,
+        out: &mut [Rgba],
+        src: &[Voxel],
+        first: usize,
+        t: &SliceTables<'_>,
+        j: i64,
+        k: &impl Kernels,
+    ) {
+        self.0.shade_run(out, src, first, t, j, k)
+    }
+
+    const FLAT: FlatRule = FlatRule::Always;
 }
 
 /// Composite mode, unshadowed, without depth cueing: the premultiplied shaded colour.
@@ -199,5 +250,12 @@ impl Shading for Way<'_, '_> {
     #[inline(always)]
     fn shades(&self) -> bool {
         !matches!(self, Way::Mip)
+    }
+
+    const FLAT: FlatRule = FlatRule::AsAsked;
+
+    #[inline(always)]
+    fn excludes_flat(&self, t: &SliceTables<'_>) -> bool {
+        t.flat_voxels == FlatVoxels::Excluded && self.shades()
     }
 }

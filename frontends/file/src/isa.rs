@@ -229,14 +229,20 @@ mod tests {
     #[test]
     fn wider_builds_shade_extreme_tables_like_the_baseline() {
         let mut rnd = xorshift(0x2545_f491_4f6c_dd1d);
-        let dims = [19, 23, 17];
+        let dims = [41, 37, 35];
         let grid = Grid::new(dims, [1.0, 1.2, 0.9]).unwrap();
         let dense: Vec<Voxel> = (0..grid.voxel_count())
-            .map(|_| {
+            .map(|i| {
                 let r = rnd();
+                let (x, y, z) = (i % 41, i / 41 % 37, i / (41 * 37));
                 Voxel {
-                    // A third transparent, so runs of both kinds occur.
-                    opacity: if r.is_multiple_of(3) {
+                    // A third transparent, so runs of both kinds occur: at random in
+                    // part of the volume, and elsewhere in blocks, so that runs of 32
+                    // voxels and more (which the vector marking of flat voxels takes
+                    // whole) occur along every axis.
+                    opacity: if (x + y + z) < 40 && r.is_multiple_of(3)
+                        || (x + y + z) >= 40 && (x / 20 + y / 20 + z / 20) % 3 == 0
+                    {
                         0
                     } else {
                         (r >> 8) as u8
@@ -302,8 +308,8 @@ mod tests {
             let cam = Camera {
                 rotate_x: 21.0,
                 rotate_y: 38.0,
-                width: 48,
-                height: 48,
+                width: 64,
+                height: 64,
             };
             let mut unused = Box::new(ShadeTable::UNSHADED);
             let mut frame = Frame::new(&grid, &cam, &settings, &mut unused, None).unwrap();
