@@ -1047,7 +1047,7 @@ fn over_run_flat(
             break;
         };
         let f = flat::tap_words(ft, fb, bl + i0);
-        let mixed = flat::mixed(&f, chunk.len());
+        let mixed = flat::mixed(&f, w, chunk.len());
         if mixed == 0 {
             highest = highest.max(kern.over_run(chunk, t, b, w));
             continue;
