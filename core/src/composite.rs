@@ -1387,8 +1387,8 @@ mod tests {
         fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64 {
             closed_bits(px, thr)
         }
-        fn flat_bits(&self, voxels: &[Voxel]) -> u64 {
-            flat_bits(voxels)
+        fn flat_bits(&self, voxels: &[Voxel], n: usize) -> u64 {
+            flat_bits(voxels, n)
         }
         fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
             crate::perspective::composite_slice(job, self)

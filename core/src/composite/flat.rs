@@ -34,22 +34,26 @@ fn load(w: &Rgba) -> u64 {
     bytemuck::cast(*w)
 }
 
-/// Sets bit `at + i` of `words` for each flat voxel `src[i]`, found 64 at a time by
-/// `flat_bits` ([`super::Kernels::flat_bits`]); true if any was. Bits past the words are
-/// not set (the rows are sized so there are none).
+/// Sets bit `at + i` of `words` for each flat voxel `src[i]` of the first `n`, found 64
+/// at a time by `flat_bits` ([`super::Kernels::flat_bits`], which may read the voxels
+/// after them); true if any was. Bits past the words are not set (the rows are sized
+/// so there are none).
 #[inline(always)]
 pub(crate) fn mark(
     words: &mut [Rgba],
     at: usize,
     src: &[Voxel],
-    flat_bits: impl Fn(&[Voxel]) -> u64,
+    n: usize,
+    flat_bits: impl Fn(&[Voxel], usize) -> u64,
 ) -> bool {
+    let n = n.min(src.len());
     let mut any = false;
-    for (c, chunk) in src.chunks(64).enumerate() {
-        let m = flat_bits(chunk);
+    for c in 0..n.div_ceil(64) {
+        let from = 64 * c;
+        let m = flat_bits(src.get(from..).unwrap_or_default(), (n - from).min(64));
         if m != 0 {
             any = true;
-            let pos = at + 64 * c;
+            let pos = at + from;
             let (q, r) = (pos / 64, pos % 64);
             if let Some(w) = words.get_mut(q) {
                 *w = bytemuck::cast(load(w) | m << r);
@@ -218,7 +222,13 @@ mod tests {
                     },
                 })
                 .collect();
-            let any = mark(&mut words, at, &src, crate::composite::kernels::flat_bits);
+            let any = mark(
+                &mut words,
+                at,
+                &src,
+                n,
+                crate::composite::kernels::flat_bits,
+            );
             assert_eq!(any, src.iter().any(|v| v.normal == ZERO_GRADIENT));
             for pos in 0..6 * 64 {
                 let want = pos >= at && pos < at + n && src[pos - at].normal == ZERO_GRADIENT;

@@ -29,9 +29,10 @@ pub(crate) trait Kernels {
     /// Bit `i` set where pixel `px[i]` (at most 64 pixels) reached opacity `thr`
     /// (`thr >= 1`): [`closed_bits`] or a bit-identical vector version.
     fn closed_bits(&self, px: &[Rgba], thr: u32) -> u64;
-    /// Bit `i` set for each flat voxel `voxels[i]` (at most 64 voxels, [`super::flat`]):
+    /// Bit `i` set for each flat voxel `voxels[i]` of the first `n <= 64`
+    /// ([`super::flat`]; the voxels after them may be read, and count for nothing):
     /// [`flat_bits`] or a bit-identical vector version.
-    fn flat_bits(&self, voxels: &[Voxel]) -> u64;
+    fn flat_bits(&self, voxels: &[Voxel], n: usize) -> u64;
     /// Composites a slice of a perspective view ([`crate::perspective::composite_slice`])
     /// with these kernels, in a function of its own compiled for the build's
     /// instruction set: inlined into the band compositor instead, it made frames slower.
@@ -71,8 +72,8 @@ impl Kernels for Portable {
         closed_bits(px, thr)
     }
     #[inline(always)]
-    fn flat_bits(&self, voxels: &[Voxel]) -> u64 {
-        flat_bits(voxels)
+    fn flat_bits(&self, voxels: &[Voxel], n: usize) -> u64 {
+        flat_bits(voxels, n)
     }
     #[inline(always)]
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
@@ -99,7 +100,7 @@ where
     P: Fn(&[u16; 4], &ShadeEntry, u32) -> Rgba,
     O: Fn(&mut [Rgba], &[Rgba], &[Rgba], [u32; 4]) -> u16,
     C: Fn(&[Rgba], u32) -> u64,
-    B: Fn(&[Voxel]) -> u64,
+    B: Fn(&[Voxel], usize) -> u64,
     S: Fn(SliceJob<'_, '_>) -> Result<(), Error>,
     F: Fn(SliceJob<'_, '_>, Way<'_, '_>) -> Result<(), Error>,
 {
@@ -120,8 +121,8 @@ where
         (self.3)(px, thr)
     }
     #[inline(always)]
-    fn flat_bits(&self, voxels: &[Voxel]) -> u64 {
-        (self.4)(voxels)
+    fn flat_bits(&self, voxels: &[Voxel], n: usize) -> u64 {
+        (self.4)(voxels, n)
     }
     #[inline(always)]
     fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
@@ -398,44 +399,52 @@ macro_rules! closed_bits_avx2 {
 #[cfg(target_arch = "x86_64")]
 pub(crate) use closed_bits_avx2;
 
-/// Bit `i` set for each flat voxel `voxels[i]` (of at most 64; a zero gradient,
-/// [`crate::normal::ZERO_GRADIENT`]), voxel by voxel: last voxel first, each shifting
-/// the ones before it up (a shift by one a voxel rather than one by the voxel's index).
+/// Bit `i` set for each flat voxel `voxels[i]` of the first `n` (at most 64; a zero
+/// gradient, [`crate::normal::ZERO_GRADIENT`]), voxel by voxel: last voxel first, each
+/// shifting the ones before it up (a shift by one a voxel rather than one by the
+/// voxel's index).
 #[inline(always)]
-pub(crate) fn flat_bits(voxels: &[Voxel]) -> u64 {
+pub(crate) fn flat_bits(voxels: &[Voxel], n: usize) -> u64 {
     voxels
         .iter()
-        .take(64)
+        .take(n.min(64))
         .rev()
         .fold(0u64, |m, v| m << 1 | (v.normal == ZERO_GRADIENT) as u64)
 }
 
-/// [`flat_bits`] in AVX2 for each whole 32 voxels: a byte a voxel, all ones for a flat
-/// one, in a loop the compiler vectorises, then the bytes' mask; the voxels after them
-/// one by one. A loop over the bytes of any count left its last voxels to a scalar
-/// loop, and the vector load of bytes just stored one at a time waited for them (the
-/// x86-64-v4 build: 5 % of spheres256's frame on that load's test). A macro expanding
-/// to a closure, written inside the x86-64-v3 and v4 compositors (see
-/// [`premultiply_sse41`]).
+/// [`flat_bits`] in AVX2, 32 voxels at a time: a byte a voxel, all ones for a flat one,
+/// in a loop the compiler vectorises, then the bytes' mask. A block reads on past the
+/// `n` voxels when the slice's voxels do (a shaded run is mostly followed by the next
+/// runs' voxels), and the bits past `n` are dropped; only a block at the end of the
+/// slice's voxels goes voxel by voxel. A loop over the bytes of any count left its last
+/// voxels to a scalar loop, and the vector load of bytes just stored one at a time
+/// waited for them (the x86-64-v4 build: 5 % of spheres256's frame on that load's
+/// test). A macro expanding to a closure, written inside the x86-64-v3 and v4
+/// compositors (see [`premultiply_sse41`]).
 #[cfg(target_arch = "x86_64")]
 macro_rules! flat_bits_avx2 {
     () => {
-        |voxels: &[$crate::classify::Voxel]| -> u64 {
+        |voxels: &[$crate::classify::Voxel], n: usize| -> u64 {
             use core::arch::x86_64::*;
-            let voxels = &voxels[..voxels.len().min(64)];
-            let mut blocks = voxels.chunks_exact(32);
+            let n = n.min(64).min(voxels.len());
             let mut m = 0u64;
-            for (b, block) in blocks.by_ref().enumerate() {
+            let mut from = 0;
+            while from < n {
+                let Some(block) = voxels.get(from..from + 32) else {
+                    let rest = voxels.get(from..).unwrap_or_default();
+                    m |= $crate::composite::flat_bits(rest, n - from) << from;
+                    break;
+                };
                 let mut flags = [0u8; 32];
                 for (f, v) in flags.iter_mut().zip(block) {
                     *f = 0u8.wrapping_sub((v.normal == $crate::normal::ZERO_GRADIENT) as u8);
                 }
-                m |= (_mm256_movemask_epi8(bytemuck::cast(flags)) as u32 as u64) << (32 * b);
+                m |= (_mm256_movemask_epi8(bytemuck::cast(flags)) as u32 as u64) << from;
+                from += 32;
             }
-            let rest = blocks.remainder();
-            match voxels.len() - rest.len() {
-                64 => m,
-                at => m | $crate::composite::flat_bits(rest) << at,
+            match n {
+                64.. => m,
+                _ => m & ((1u64 << n) - 1),
             }
         }
     };

@@ -213,8 +213,7 @@ impl<'b> Row<'b> {
     /// instead, the test cost the default way an instruction a voxel).
     #[inline(always)]
     fn mark_flat(&mut self, x: usize, src: &[Voxel], n: usize, k: &impl Kernels) {
-        let src = src.get(..n).unwrap_or(src);
-        if !self.flat.is_empty() && flat::mark(self.flat, x + 1, src, |v| k.flat_bits(v)) {
+        if !self.flat.is_empty() && flat::mark(self.flat, x + 1, src, n, |v, n| k.flat_bits(v, n)) {
             self.has_flat = true;
         }
     }
