@@ -944,7 +944,7 @@ fn over_span(
 }
 
 /// A span of a scanline whose rows hold flat voxels, with bits `flat` (top row, bottom
-/// row): [`Kernels::over_span_flat`].
+/// row): [`over_span_flat`].
 pub(crate) struct FlatSpan<'a, 'r> {
     pixels: &'a mut [Rgba],
     opaque: &'a mut [opaque::Word],
@@ -954,11 +954,11 @@ pub(crate) struct FlatSpan<'a, 'r> {
     ert: u32,
 }
 
-/// [`over_span`] for rows that hold flat voxels, each run by [`over_run_flat`]. A
-/// function the builds call out of line ([`Kernels::over_span_flat`]): inlined beside
-/// the common path, and with the rows' bits passed along it, it made that path's code
-/// longer where rows have no flat voxel (the MR head, callgrind: 4 % more instructions
-/// a frame, where 0.3 % of the runs have flat voxels).
+/// [`over_span`] for rows that hold flat voxels, each run by [`over_run_flat`]. Only the
+/// slice loops of ways that may exclude flat voxels hold it ([`FlatRule`]): inlined
+/// beside the default loop's common path, it made that path's code longer where rows
+/// have no flat voxel (the MR head, callgrind: 4 % more instructions a frame, where
+/// 0.3 % of the runs have flat voxels).
 #[inline(always)]
 pub(crate) fn over_span_flat(span: FlatSpan<'_, '_>, kern: &impl Kernels) {
     let FlatSpan {

@@ -339,8 +339,8 @@ macro_rules! band_compositor {
 
 /// Defines an instruction-set build `$name` of the band compositor, compiled with the
 /// target features `$features`, whose kernels are `[$warm, $premultiply, $over,
-/// $closed, $bits]` ([`composite::With`]), and beside it `$persp` and `$flat`: the perspective
-/// slice compositor and the compositor of spans whose rows hold flat voxels, compiled
+/// $closed, $bits]` ([`composite::With`]), and beside it `$persp` and `$flat`: the
+/// perspective slice compositor and the slice loop with flat voxels excluded, compiled
 /// with the same features and kernels, each in a function of its own
 /// ([`composite::Kernels::perspective`], [`composite::Kernels::composite_flat`]).
 #[cfg(target_arch = "x86_64")]

@@ -16,8 +16,9 @@
 //!
 //! A row keeps one bit per shaded voxel, set for flat ones, in words stored in the row
 //! buffer's tail ([`super::row_buffer_len`]). Most samples mix no flat voxel; those that
-//! may are found 64 pixels at a time from the two rows' bits, and only they are
-//! resampled again by [`resample`]. The compositing kernels themselves stay as they are.
+//! may are found 64 pixels at a time from the two rows' bits and the slice's weights
+//! ([`mixed`]), and only they are composited again, with [`recolour`]'s colour. The
+//! compositing kernels themselves stay as they are.
 
 use super::Rgba;
 use crate::classify::Voxel;

@@ -26,13 +26,6 @@ pub(crate) trait Shading {
         k: &impl Kernels,
     );
 
-    /// Whether this way shades (flat voxels matter to it, [`super::flat`]): every way
-    /// but MIP's grey.
-    #[inline(always)]
-    fn shades(&self) -> bool {
-        true
-    }
-
     /// Where this way's slice loop applies the rule for flat voxels: a constant, so the
     /// loops of ways that never do hold none of it.
     const FLAT: FlatRule = FlatRule::Never;
@@ -190,11 +183,6 @@ impl Shading for Mip {
             *o = [g; 4];
         }
     }
-
-    #[inline(always)]
-    fn shades(&self) -> bool {
-        false
-    }
 }
 
 /// The way a slice's voxels are shaded, from its mode, its shadows and its depth-cue
@@ -247,15 +235,12 @@ impl Shading for Way<'_, '_> {
         }
     }
 
-    #[inline(always)]
-    fn shades(&self) -> bool {
-        !matches!(self, Way::Mip)
-    }
-
     const FLAT: FlatRule = FlatRule::AsAsked;
 
+    /// As the tables ask, but never in MIP: its grey is not shaded, so flat voxels do
+    /// not matter to it.
     #[inline(always)]
     fn excludes_flat(&self, t: &SliceTables<'_>) -> bool {
-        t.flat_voxels == FlatVoxels::Excluded && self.shades()
+        t.flat_voxels == FlatVoxels::Excluded && !matches!(self, Way::Mip)
     }
 }
