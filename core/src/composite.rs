@@ -16,6 +16,7 @@
 //! into a row buffer (premultiplied RGBA); each row is used by two intermediate scanlines.
 
 mod flat;
+pub(crate) use flat::words as flat_words;
 mod kernels;
 mod row;
 mod shading;
@@ -439,6 +440,14 @@ fn composite_rows<S: Shading>(
     let [ni, nj, _] = view.dims;
     let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
     let (mut r0, mut r1) = Row::pair(rows, ni, clean);
+    // A slice that brings a table of its flat voxels ([`crate::rle::RleAxis::with_flat_rows`])
+    // is read from it by the loops that always apply the rule, and its rows are not
+    // marked (rows without bits to mark).
+    let table = S::FLAT == FlatRule::Always && !slice.flat.is_empty();
+    if table {
+        r0.flat = &mut [];
+        r1.flat = &mut [];
+    }
     // Swapped by reference: a row carries its written runs, too large to swap by value
     // every scanline.
     let (mut top, mut bot) = (&mut r0, &mut r1);
@@ -589,13 +598,27 @@ fn composite_rows<S: Shading>(
                 // Rows with flat voxels (only ever marked in composite mode, and only
                 // by ways that may exclude them: a compile-time constant, so the loops
                 // of the others hold no such path) go to a compositor of their own.
-                if S::FLAT != FlatRule::Never && (top.has_flat || bot.has_flat) {
+                // A row without shaded voxels reads no bits from the table: its flat
+                // voxels' entries are zero, and would only make samples mixed for nothing.
+                let from_table = |row: &Row<'_>, j: i64| match row.extent() {
+                    Some(_) => slice.flat_row(j),
+                    None => &[],
+                };
+                let flat = match table {
+                    true => (from_table(top, jt), from_table(bot, jt + 1)),
+                    false => (&*top.flat, &*bot.flat),
+                };
+                let has_flat = match table {
+                    true => flat::any(flat.0) || flat::any(flat.1),
+                    false => top.has_flat || bot.has_flat,
+                };
+                if S::FLAT != FlatRule::Never && has_flat {
                     over_span_flat(
                         FlatSpan {
                             pixels,
                             opaque,
                             taps,
-                            flat: (top.flat, bot.flat),
+                            flat,
                             us: ua..ub,
                             ert: tables.ert,
                         },

@@ -239,6 +239,7 @@ mod tests {
             runs,
             voxels: &vox,
             scans: &scans,
+            flat: &[],
         };
         slice.validate().unwrap();
         let mut alpha = [0u16; 81];

@@ -509,6 +509,7 @@ impl<'b> RecordParser<'b> {
             runs: &self.runs[..self.n_runs],
             voxels: &self.voxels[..self.n_voxels],
             scans: &self.scans[..self.n_scans],
+            flat: &[],
         };
         slice.validate()?;
         Ok(slice)

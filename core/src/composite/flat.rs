@@ -69,6 +69,12 @@ pub(crate) fn mark(
     any
 }
 
+/// Whether any bit of `words` is set.
+#[inline(always)]
+pub(crate) fn any(words: &[Rgba]) -> bool {
+    words.iter().any(|w| load(w) != 0)
+}
+
 /// Bit `pos` of `words`.
 #[inline(always)]
 pub(crate) fn bit(words: &[Rgba], pos: usize) -> bool {

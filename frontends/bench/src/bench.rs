@@ -284,21 +284,31 @@ fn save_strip(path: &std::path::Path, size: usize, images: &[&[[u8; 3]]]) -> std
 }
 
 /// Times shearwarp's preprocessing `runs` times; returns the last encoding and the median.
+/// With flat voxels excluded from samples' colours, the tables of flat voxels the
+/// compositor then reads are part of it ([`Encoded::build_flat_rows`]).
 fn sw_preprocess(
     vol: &Loaded,
     scene: &Scene,
     runs: usize,
+    flat: FlatVoxels,
 ) -> Result<(Encoded, f64), Box<dyn Error>> {
     let class = scene.look.classification();
+    let encode = || -> Result<Encoded, Box<dyn Error>> {
+        let mut enc = scene::encode_threads(&vol.raw, &class, 1)?;
+        if flat == FlatVoxels::Excluded {
+            enc.build_flat_rows()?;
+        }
+        Ok(enc)
+    };
     let mut times = Vec::new();
     // Earlier runs are dropped at the end of each iteration, so at most one is alive.
     for _ in 1..runs.max(1) {
         let t = Instant::now();
-        let _enc = scene::encode_threads(&vol.raw, &class, 1)?;
+        let _enc = encode()?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let t = Instant::now();
-    let enc = scene::encode_threads(&vol.raw, &class, 1)?;
+    let enc = encode()?;
     times.push(t.elapsed().as_secs_f64() * 1e3);
     Ok((enc, Stats::of(&times).median))
 }
@@ -330,7 +340,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         scene.name,
         t.elapsed().as_secs_f64() * 1e3
     );
-    let (enc, sw_prep) = sw_preprocess(&vol, scene, opts.prep_runs)?;
+    let (enc, sw_prep) = sw_preprocess(&vol, scene, opts.prep_runs, opts.flat_voxels)?;
     let look = scene.look.look(enc.range)?;
     let mut vp = None;
     let mut vp_prep = None;

@@ -460,6 +460,10 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         let look = look_of(o, tf.mode, color, lighting, true)?;
         (enc, look)
     };
+    let mut encoded = encoded;
+    if o.flat_voxels == FlatVoxelsArg::Excluded {
+        encoded.build_flat_rows()?;
+    }
     let threads = thread_count(o)?;
     Ok(Prepared {
         threads,

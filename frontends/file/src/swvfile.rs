@@ -142,6 +142,7 @@ pub fn read_swv(path: &std::path::Path) -> Result<(Encoded, swv::Look), SwvError
         runs,
         voxels,
         scans,
+        flat: Default::default(),
     };
     enc.volume().map_err(err)?;
     Ok((enc, header.look))
