@@ -22,9 +22,11 @@ mod row;
 mod shading;
 
 #[cfg(target_arch = "x86_64")]
+pub(crate) use flat::sums as flat_sums;
+#[cfg(target_arch = "x86_64")]
 pub(crate) use kernels::{
-    by_steps, closed_bits, closed_bits_avx2, flat_bits, flat_bits_avx2, highest, over_run,
-    over_run_simd, over_run_unranked, premultiply, premultiply_sse41, With,
+    by_steps, closed_bits, closed_bits_avx2, flat_bits, flat_bits_avx2, flat_sums_avx2, highest,
+    over_run, over_run_simd, over_run_unranked, premultiply, premultiply_sse41, With,
 };
 pub(crate) use kernels::{Kernels, Portable};
 pub(crate) use row::{MergedSpans, Row, Spans};
@@ -1097,7 +1099,7 @@ fn over_run_flat(
                 break;
             };
             let taps = [tt[0], tt[1], bb[0], bb[1]];
-            if let Some(col) = flat::recolour(&taps, w, flat::pixel(&f, i)) {
+            if let Some(col) = flat::recolour_from(kern.flat_sums(&taps, w, flat::pixel(&f, i))) {
                 let tr = ONE - k[3] as u32;
                 for c in 0..3 {
                     p[c] = (k[c] as u32 + fixed::mul(col[c], tr)).min(ONE) as u16;
@@ -1412,6 +1414,9 @@ mod tests {
         }
         fn flat_bits(&self, voxels: &[Voxel], n: usize) -> u64 {
             flat_bits(voxels, n)
+        }
+        fn flat_sums(&self, t: &[Rgba; 4], w: [u32; 4], flat: u32) -> ([u32; 4], u32) {
+            flat::sums(t, w, flat)
         }
         fn perspective(&self, job: SliceJob<'_, '_>) -> Result<(), Error> {
             crate::perspective::composite_slice(job, self)

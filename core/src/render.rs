@@ -348,13 +348,13 @@ macro_rules! isa_band_compositor {
     (
         $(#[$attr:meta])*
         $name:ident, $persp:ident, $flat:ident, $features:literal,
-        [$warm:expr, $premultiply:expr, $over:expr, $closed:expr, $bits:expr $(,)?]
+        [$warm:expr, $premultiply:expr, $over:expr, $closed:expr, $bits:expr, $sums:expr $(,)?]
     ) => {
         band_compositor! {
             $(#[$attr])*
             #[target_feature(enable = $features)]
             $name,
-            &isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits)
+            &isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits, $sums)
         }
 
         #[doc = concat!(
@@ -363,7 +363,7 @@ macro_rules! isa_band_compositor {
         #[target_feature(enable = $features)]
         #[inline(never)]
         fn $persp(job: composite::SliceJob<'_, '_>) -> Result<(), Error> {
-            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits);
+            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits, $sums);
             crate::perspective::composite_slice_in(job, &kern)
         }
 
@@ -376,7 +376,7 @@ macro_rules! isa_band_compositor {
             job: composite::SliceJob<'_, '_>,
             way: composite::Way<'_, '_>,
         ) -> Result<(), Error> {
-            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits);
+            let kern = isa_kernels!($persp, $flat, $warm, $premultiply, $over, $closed, $bits, $sums);
             composite::composite_rows_excluding(job, &kern, way)
         }
     };
@@ -389,7 +389,7 @@ macro_rules! isa_band_compositor {
 macro_rules! isa_kernels {
     (
         $persp:ident, $flat:ident, $warm:expr, $premultiply:expr, $over:expr, $closed:expr,
-        $bits:expr
+        $bits:expr, $sums:expr
     ) => {
         composite::With(
             $warm,
@@ -397,6 +397,7 @@ macro_rules! isa_kernels {
             $over,
             $closed,
             $bits,
+            $sums,
             |job: composite::SliceJob<'_, '_>| $persp(job),
             |job: composite::SliceJob<'_, '_>, way: composite::Way<'_, '_>| $flat(job, way),
         )
@@ -446,6 +447,7 @@ isa_band_compositor! {
         composite::over_run_unranked,
         composite::closed_bits,
         composite::flat_bits,
+        composite::flat_sums,
     ]
 }
 
@@ -479,6 +481,7 @@ isa_band_compositor! {
         composite::over_run_simd!(avx2),
         composite::closed_bits_avx2!(),
         composite::flat_bits_avx2!(),
+        composite::flat_sums_avx2!(),
     ]
 }
 
@@ -501,6 +504,7 @@ isa_band_compositor! {
         composite::over_run_simd!(avx512),
         composite::closed_bits_avx2!(),
         composite::flat_bits_avx2!(),
+        composite::flat_sums_avx2!(),
     ]
 }
 

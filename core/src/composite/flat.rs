@@ -165,21 +165,30 @@ pub(crate) fn resample(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> [u32; 4] {
 }
 
 /// The colour [`resample`] gives taps `t` with weights `w` and flat bits `flat` when the
-/// rule applies, `None` when it does not (the sample is then [`sample`]'s).
-///
-/// The sums are taken two channels to a 64-bit word (red and blue, green and opacity,
-/// each in a 32-bit field), over the non-flat taps, and the opacity over all of them,
-/// without branches but the one on whether the rule applies: written per channel, the
-/// compiler kept the channels in scalar registers (spheres256, callgrind: 57
-/// instructions a sample for the products alone).
+/// rule applies, `None` when it does not (the sample is then [`sample`]'s): [`sums`],
+/// then [`recolour_from`].
 #[inline(always)]
 pub(crate) fn recolour(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> Option<[u32; 3]> {
+    recolour_from(sums(t, w, flat))
+}
+
+/// The sums the rule takes of taps `t` with weights `w` and flat bits `flat`: each
+/// channel's `Σ' wᵢcᵢ` over the taps that are not flat (red, green, blue, opacity), and
+/// the opacity's `Σ wᵢαᵢ` over all of them. Exact for any 16-bit taps: the weights sum
+/// to one (Q15), so every sum is below `2^31`. The compositor takes them from
+/// [`super::Kernels::flat_sums`], which an instruction-set build may replace.
+///
+/// Taken two channels to a 64-bit word (red and blue, green and opacity, each in a
+/// 32-bit field), without branches: written per channel, the compiler kept the channels
+/// in scalar registers (spheres256, callgrind: 57 instructions a sample for the products
+/// alone).
+#[inline(always)]
+pub(crate) fn sums(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> ([u32; 4], u32) {
     const FIELDS: u64 = 0x0000_ffff_0000_ffff;
     let (mut kept, mut all) = ([0u64; 2], 0u64);
     for i in 0..4 {
         let v: u64 = bytemuck::cast(t[i]);
-        // Each field's product is at most 2^30, and so is its sum over the taps: the
-        // weights sum to one (Q15) and the channels are at most one (Q15). No field
+        // Each field's product, and its sum over the taps, is below 2^31: no field
         // carries into the next.
         let x = [(v & FIELDS) * w[i] as u64, (v >> 16 & FIELDS) * w[i] as u64];
         // All ones for a tap with a direction, zero for a flat one.
@@ -188,9 +197,16 @@ pub(crate) fn recolour(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> Option<[u32; 3]
         kept[1] += x[1] & keep;
         all += x[1];
     }
-    let lane = |p: &[u64; 2], c: usize| (p[c & 1] >> (32 * (c >> 1))) as u32;
-    let an = lane(&kept, 3);
-    let aa = (all >> 32) as u32;
+    let lane = |c: usize| (kept[c & 1] >> (32 * (c >> 1))) as u32;
+    ([lane(0), lane(1), lane(2), lane(3)], (all >> 32) as u32)
+}
+
+/// [`recolour`] from the rule's sums ([`sums`]): the non-flat taps' colour scaled to the
+/// sample's opacity, `Σ' wᵢcᵢ · α / Σ' wᵢαᵢ`, or `None` when no tap with weight and
+/// opacity is flat or none is not.
+#[inline(always)]
+pub(crate) fn recolour_from((kept, aa): ([u32; 4], u32)) -> Option<[u32; 3]> {
+    let an = kept[3];
     if an == 0 || an == aa {
         return None;
     }
@@ -200,7 +216,7 @@ pub(crate) fn recolour(t: &[Rgba; 4], w: [u32; 4], flat: u32) -> Option<[u32; 3]
     let alpha = ((aa + (1 << 14)) >> 15) as u64;
     let ratio = (alpha << 32) / an as u64;
     Some(core::array::from_fn(|c| {
-        let kc = lane(&kept, c).min(an) as u64;
+        let kc = kept[c].min(an) as u64;
         ((kc * ratio + (1 << 31)) >> 32).min(alpha) as u32
     }))
 }
