@@ -442,14 +442,11 @@ fn composite_rows<S: Shading>(
     let [ni, nj, _] = view.dims;
     let [ou, ov]: [SliceOffset; 2] = view.slice_offset(k);
     let (mut r0, mut r1) = Row::pair(rows, ni, clean);
-    // A slice that brings a table of its flat voxels ([`crate::rle::RleAxis::with_flat_rows`])
-    // is read from it by the loops that always apply the rule, and its rows are not
-    // marked (rows without bits to mark).
+    // The loops that always apply the rule copy a row's flat bits from the slice's table
+    // of flat voxels ([`crate::rle::RleAxis::with_flat_rows`]), when it has one, instead
+    // of finding them in the voxels. The others are given none.
     let table = S::FLAT == FlatRule::Always && !slice.flat.is_empty();
-    if table {
-        r0.flat = &mut [];
-        r1.flat = &mut [];
-    }
+    let flat_of = |j: i64| if table { slice.flat_row(j) } else { &[] };
     // Swapped by reference: a row carries its written runs, too large to swap by value
     // every scanline.
     let (mut top, mut bot) = (&mut r0, &mut r1);
@@ -482,7 +479,14 @@ fn composite_rows<S: Shading>(
     {
         let need = Needed::lines(img, jt_lo + ov.n as i64, ou.n as i64);
         let need = skip_opaque_voxels.then_some(&need);
-        top.fill(first.0, first.1, tables, jt_lo, need, kern, shading);
+        top.fill(
+            (first.0, first.1, flat_of(jt_lo)),
+            tables,
+            jt_lo,
+            need,
+            kern,
+            shading,
+        );
     }
     // What open pixels read of the rows two rows ahead, by row index mod 4. A row whose
     // every voxel only closed pixels read is neither streamed into the cache nor walked:
@@ -570,11 +574,25 @@ fn composite_rows<S: Shading>(
         match next_reach {
             Reach::Nothing => bot.clear(),
             Reach::Everything => {
-                bot.fill(next.0, next.1, tables, jt + 1, None, kern, shading);
+                bot.fill(
+                    (next.0, next.1, flat_of(jt + 1)),
+                    tables,
+                    jt + 1,
+                    None,
+                    kern,
+                    shading,
+                );
             }
             Reach::Some => {
                 let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
-                bot.fill(next.0, next.1, tables, jt + 1, Some(&need), kern, shading);
+                bot.fill(
+                    (next.0, next.1, flat_of(jt + 1)),
+                    tables,
+                    jt + 1,
+                    Some(&need),
+                    kern,
+                    shading,
+                );
             }
         }
         let v = jt + ov.n as i64 + 1;
@@ -600,27 +618,13 @@ fn composite_rows<S: Shading>(
                 // Rows with flat voxels (only ever marked in composite mode, and only
                 // by ways that may exclude them: a compile-time constant, so the loops
                 // of the others hold no such path) go to a compositor of their own.
-                // A row without shaded voxels reads no bits from the table: its flat
-                // voxels' entries are zero, and would only make samples mixed for nothing.
-                let from_table = |row: &Row<'_>, j: i64| match row.extent() {
-                    Some(_) => slice.flat_row(j),
-                    None => &[],
-                };
-                let flat = match table {
-                    true => (from_table(top, jt), from_table(bot, jt + 1)),
-                    false => (&*top.flat, &*bot.flat),
-                };
-                let has_flat = match table {
-                    true => flat::any(flat.0) || flat::any(flat.1),
-                    false => top.has_flat || bot.has_flat,
-                };
-                if S::FLAT != FlatRule::Never && has_flat {
+                if S::FLAT != FlatRule::Never && (top.has_flat || bot.has_flat) {
                     over_span_flat(
                         FlatSpan {
                             pixels,
                             opaque,
                             taps,
-                            flat,
+                            flat: (top.flat, bot.flat),
                             us: ua..ub,
                             ert: tables.ert,
                         },
@@ -1497,7 +1501,7 @@ mod tests {
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut lazy_buf = [[1u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill(&runs, &voxels, &t, 0, None, &Portable, &Lit);
+            eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
             let mut lazy = Row::new(&mut lazy_buf, false);
             let place = (tu, ss, NI);
             fill_supersampled(

@@ -780,7 +780,7 @@ mod tests {
                 crate::composite::random_scanline(NI, &mut |m| next(m as usize) as u32);
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill(&runs, &voxels, &t, 0, None, &Portable, &Lit);
+            eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
             let mut lazy_buf = [[3u16; 4]; NI + 2];
             let mut lazy = Row::new(&mut lazy_buf, false);
             let mut shader = Shader::new(&runs, &voxels, NI);

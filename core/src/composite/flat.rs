@@ -69,10 +69,31 @@ pub(crate) fn mark(
     any
 }
 
-/// Whether any bit of `words` is set.
+/// Sets in `words` the bits `at..at + n` of `table` that are set (a row's words of a
+/// table of flat voxels, laid out as `words`); true if any was.
 #[inline(always)]
-pub(crate) fn any(words: &[Rgba]) -> bool {
-    words.iter().any(|w| load(w) != 0)
+pub(crate) fn copy(words: &mut [Rgba], at: usize, table: &[Rgba], n: usize) -> bool {
+    let end = at + n;
+    let mut any = 0;
+    for q in at / 64..end.div_ceil(64) {
+        // The bits of word q inside at..end.
+        let lo = if q == at / 64 {
+            u64::MAX << (at % 64)
+        } else {
+            u64::MAX
+        };
+        let hi = match end - 64 * q {
+            64.. => u64::MAX,
+            e => (1u64 << e) - 1,
+        };
+        let (Some(w), Some(t)) = (words.get_mut(q), table.get(q)) else {
+            break;
+        };
+        let bits = load(t) & lo & hi;
+        *w = bytemuck::cast(load(w) | bits);
+        any |= bits;
+    }
+    any != 0
 }
 
 /// Bit `pos` of `words`.
@@ -266,6 +287,26 @@ mod tests {
                 assert_eq!(f[0], window(pos));
                 assert_eq!(f[1], window(pos + 1));
             }
+        }
+    }
+
+    #[test]
+    fn copied_bits_are_the_tables_inside_the_range_only() {
+        let mut rng = crate::xorshift(0xc0b1);
+        for _ in 0..500 {
+            let table: [Rgba; 5] = core::array::from_fn(|_| bytemuck::cast(rng()));
+            let before: [Rgba; 5] = core::array::from_fn(|_| bytemuck::cast(rng() & rng()));
+            let mut words = before;
+            let at = (rng() % 200) as usize;
+            let n = (rng() % 140) as usize;
+            let any = copy(&mut words, at, &table, n);
+            let mut copied = false;
+            for pos in 0..5 * 64 {
+                let inside = pos >= at && pos < at + n && bit(&table, pos);
+                copied |= inside;
+                assert_eq!(bit(&words, pos), bit(&before, pos) || inside, "bit {pos}");
+            }
+            assert_eq!(any, copied, "at {at}, n {n}");
         }
     }
 

@@ -178,7 +178,9 @@ impl<'b> Row<'b> {
     }
 
     /// After `shading` shaded voxels `src` (`n` of them) into entries `x + 1..`: their
-    /// flat bits, when the way excludes flat voxels from samples' colours.
+    /// flat bits, when the way excludes flat voxels from samples' colours. Ways that
+    /// always do copy them from the row's words of the slice's table of flat voxels,
+    /// `table` ([`crate::rle::RleAxis::with_flat_rows`]), when it has one.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn note_flat<S: Shading>(
@@ -186,12 +188,18 @@ impl<'b> Row<'b> {
         x: usize,
         src: &[Voxel],
         n: usize,
+        table: &[Rgba],
         t: &SliceTables<'_>,
         shading: &S,
         k: &impl Kernels,
     ) {
         match S::FLAT {
             FlatRule::Never => {}
+            FlatRule::Always if !table.is_empty() => {
+                if flat::copy(self.flat, x + 1, table, n) {
+                    self.has_flat = true;
+                }
+            }
             FlatRule::Always => self.mark_flat(x, src, n, k),
             FlatRule::AsAsked => {
                 if shading.excludes_flat(t) {
@@ -262,7 +270,7 @@ impl<'b> Row<'b> {
             return;
         };
         shading.shade_run(dst, src, x, t, j, k);
-        self.note_flat(x, src, y - x, t, shading, k);
+        self.note_flat(x, src, y - x, &[], t, shading, k);
         self.wrote(x + 1, y + 1);
         self.dirty = match self.extent() {
             Some((lo, hi)) => (lo.min(x + 1), hi.max(y + 1)),
@@ -277,8 +285,7 @@ impl<'b> Row<'b> {
     #[cfg_attr(target_arch = "x86_64", inline(always))]
     pub(crate) fn fill(
         &mut self,
-        runs: &[u8],
-        voxels: &[Voxel],
+        (runs, voxels, table): (&[u8], &[Voxel], &[Rgba]),
         t: &SliceTables<'_>,
         j: i64,
         needed: Option<&Needed<'_>>,
@@ -308,7 +315,7 @@ impl<'b> Row<'b> {
                         continue;
                     };
                     shading.shade_run(dst, src, a, t, j, k);
-                    self.note_flat(a, src, b - a, t, shading, k);
+                    self.note_flat(a, src, b - a, table, t, shading, k);
                     self.wrote(a + 1, b + 1);
                 }
                 Some(n) => {
@@ -341,7 +348,7 @@ impl<'b> Row<'b> {
                                 continue;
                             };
                             shading.shade_run(dst, src, c, t, j, k);
-                            self.note_flat(c, src, d - c, t, shading, k);
+                            self.note_flat(c, src, d - c, table, t, shading, k);
                             self.wrote(c + 1, d + 1);
                         }
                     }
@@ -742,9 +749,9 @@ mod tests {
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut lazy_buf = [[1u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill(&runs, &voxels, &t, 0, None, &Portable, &Lit);
+            eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
             let mut lazy = Row::new(&mut lazy_buf, false);
-            lazy.fill(&runs, &voxels, &t, 0, Some(&need), &Portable, &Lit);
+            lazy.fill((&runs, &voxels, &[]), &t, 0, Some(&need), &Portable, &Lit);
             let open = |v: i64, u: i64| -> bool {
                 (4..6).contains(&v)
                     && (0..W as i64).contains(&u)

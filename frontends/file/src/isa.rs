@@ -275,8 +275,9 @@ mod tests {
                 RleAxis::new(&grid, a, r, v, s).unwrap()
             })
             .collect();
-        // Each copy's table of flat voxels, which excluded slices read instead of marking
-        // the rows they shade: the same frames with it and without.
+        // Each copy's table of flat voxels, from which excluded slices copy the flat bits
+        // of the runs they shade instead of finding them: the same frames with it and
+        // without.
         let tables: Vec<Vec<u64>> = axes
             .iter()
             .map(|a| {

@@ -349,8 +349,8 @@ impl Encoded {
 
     /// Makes each copy's table of flat voxels ([`RleAxis::fill_flat_rows`]), which
     /// [`Encoded::volume`] then lends the compositor: rendering with flat voxels excluded
-    /// from samples' colours (`FlatVoxels::Excluded`), it reads a row's flat voxels from
-    /// the table instead of marking them as it shades the row, every frame. One bit per
+    /// from samples' colours (`FlatVoxels::Excluded`), it copies the flat bits of the runs
+    /// it shades from the table instead of finding them in the voxels. One bit per
     /// voxel position and copy (spheres256: 3 × 3.1 MB).
     pub fn build_flat_rows(&mut self) -> Result<(), Error> {
         let vol = self.volume()?;
