@@ -17,6 +17,13 @@
 
 mod flat;
 pub(crate) use flat::words as flat_words;
+
+/// Sets bit `at + i` of `words` for each flat voxel `src[i]` ([`flat::mark`] with the
+/// portable kernel): how a table of flat voxels is filled
+/// ([`crate::rle::RleAxis::fill_flat_rows`]), as the compositor marks its rows.
+pub(crate) fn mark_flat(words: &mut [Rgba], at: usize, src: &[Voxel]) -> bool {
+    flat::mark(words, at, src, src.len(), kernels::flat_bits)
+}
 mod kernels;
 mod row;
 mod shading;

@@ -20,7 +20,6 @@
 use crate::classify::{Grid, Voxel};
 use crate::composite::Rgba;
 use crate::error::{need, prefix_mut, Error};
-use crate::normal::ZERO_GRADIENT;
 
 /// Scanline start offsets into the run and voxel arrays.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -566,8 +565,9 @@ impl<'a> RleAxis<'a> {
     }
 
     /// Fills `out` ([`RleAxis::flat_rows_len`] words) with this copy's table of flat
-    /// voxels, those with an exactly zero gradient ([`ZERO_GRADIENT`]), scanline after
-    /// scanline, slice after slice ([`flat_row_words`] each).
+    /// voxels, those with an exactly zero gradient ([`crate::normal::ZERO_GRADIENT`]),
+    /// scanline after scanline, slice after slice ([`flat_row_words`] each), marked as
+    /// the compositor marks its rows.
     ///
     /// Why: with flat voxels excluded from samples' colours
     /// ([`crate::composite::FlatVoxels::Excluded`]) the compositor needs each row's flat
@@ -581,25 +581,19 @@ impl<'a> RleAxis<'a> {
     /// scanlines to the slower compositor of rows with flat voxels (the MR head and the
     /// hires brain, whose flat voxels are few: 5–15 % slower frames).
     pub fn fill_flat_rows(&self, out: &mut [u64]) -> Result<(), Error> {
-        if out.len() != self.flat_rows_len() {
-            return Err(Error::BadParameter {
-                reason: "flat-voxel table length is not flat_rows_len()",
-            });
-        }
+        self.check_flat_rows(out)?;
         out.fill(0);
         let [ni, nj, nk] = self.permuted_dims();
         let w = flat_row_words(ni);
         for (k, rows) in out.chunks_exact_mut(nj * w).take(nk).enumerate() {
             let Some(s) = self.slice(k) else { break };
             for (j, row) in rows.chunks_exact_mut(w).enumerate() {
+                // A `u64` is an `Rgba` of the same size: never an error.
+                let Ok(row) = bytemuck::try_cast_slice_mut::<u64, Rgba>(row) else {
+                    continue;
+                };
                 s.for_each_run(j, |x, voxels| {
-                    for (i, v) in voxels.iter().enumerate() {
-                        let p = x + i + 1;
-                        if let (true, Some(word)) = (v.normal == ZERO_GRADIENT, row.get_mut(p / 64))
-                        {
-                            *word |= 1 << (p % 64);
-                        }
-                    }
+                    crate::composite::mark_flat(row, x + 1, voxels);
                 });
             }
         }
@@ -608,17 +602,23 @@ impl<'a> RleAxis<'a> {
 
     /// This copy with `rows`, its table of flat voxels as [`RleAxis::fill_flat_rows`]
     /// fills it, from which the compositor then copies the flat bits of the runs it
-    /// shades instead of finding them in the voxels. A table that does not match the copy's voxels makes the
-    /// rule for flat voxels apply to the wrong ones; one of the wrong length is an
-    /// error.
+    /// shades instead of finding them in the voxels. A table that does not match the
+    /// copy's voxels makes the rule for flat voxels apply to the wrong ones; one of the
+    /// wrong length is an error.
     pub fn with_flat_rows(mut self, rows: &'a [u64]) -> Result<Self, Error> {
-        if rows.len() != self.flat_rows_len() {
-            return Err(Error::BadParameter {
-                reason: "flat-voxel table length is not flat_rows_len()",
-            });
-        }
+        self.check_flat_rows(rows)?;
         self.flat = rows;
         Ok(self)
+    }
+
+    /// An error unless `rows` is as long as this copy's table of flat voxels.
+    fn check_flat_rows(&self, rows: &[u64]) -> Result<(), Error> {
+        match rows.len() == self.flat_rows_len() {
+            true => Ok(()),
+            false => Err(Error::BadParameter {
+                reason: "flat-voxel table length is not flat_rows_len()",
+            }),
+        }
     }
 
     /// The principal axis this copy is for.
@@ -1028,6 +1028,7 @@ mod tests {
 
     #[test]
     fn the_flat_voxel_table_holds_each_visible_flat_voxel_and_nothing_else() {
+        use crate::normal::ZERO_GRADIENT;
         let grid = Grid::new([300, 2, 3], [1.0; 3]).unwrap();
         let mut dense = pseudo_random_volume(&grid, 5);
         for (i, v) in dense.iter_mut().enumerate() {

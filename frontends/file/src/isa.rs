@@ -363,8 +363,9 @@ mod tests {
             };
             let composite = |isa: Option<Isa>| composite_from(isa, &axes);
             let portable = composite(None);
-            // Read from the tables (only the x86-64 loops that always exclude flat voxels
-            // do), every build's frame is the one it marks the rows for.
+            // With the rows' flat bits copied from the tables (only the x86-64 loops that
+            // always exclude flat voxels do), every build's frame is the one it marks the
+            // rows for.
             for isa in levels.iter().map(|&i| Some(i)).chain([None]) {
                 assert!(
                     composite_from(isa, &tabled) == portable,

@@ -408,7 +408,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let (encoded, look) = if swvfile::is_swv(path) {
+    let (mut encoded, look) = if swvfile::is_swv(path) {
         if o.opacity.is_some()
             || o.gradient_opacity.is_some()
             || o.u16
@@ -460,7 +460,6 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         let look = look_of(o, tf.mode, color, lighting, true)?;
         (enc, look)
     };
-    let mut encoded = encoded;
     if o.flat_voxels == FlatVoxelsArg::Excluded {
         encoded.build_flat_rows()?;
     }

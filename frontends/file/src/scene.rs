@@ -339,9 +339,10 @@ impl Encoded {
                 &self.voxels[i],
                 &self.scans[i],
             )?;
-            match self.flat[i].is_empty() {
-                true => Ok(copy),
-                false => copy.with_flat_rows(&self.flat[i]),
+            if self.flat[i].is_empty() {
+                Ok(copy)
+            } else {
+                copy.with_flat_rows(&self.flat[i])
             }
         };
         RleVolume::new(self.grid, [axis(Axis::X)?, axis(Axis::Y)?, axis(Axis::Z)?])
