@@ -327,62 +327,69 @@ mod tests {
                 width: 64,
                 height: 64,
             };
-            let mut unused = Box::new(ShadeTable::UNSHADED);
-            let mut frame = Frame::new(&grid, &cam, &settings, &mut unused, None).unwrap();
-            // Opacities past one too: the vector kernels must match the scalar ones for
-            // any 16-bit input, not only for the tables a frame builds.
-            let mut opacity = [0u16; 256];
-            for (o, c) in opacity.iter_mut().zip(frame.color.iter_mut()) {
-                *o = rnd() as u16;
-                *c = lane(rnd());
-            }
-            frame.opacity = OpacityTable::from(opacity);
-            let tables = frame.tables(&shade, None);
-            let [iw, ih] = frame.view.intermediate;
-            let pix = view::max_intermediate_pixels(dims);
-            // One composite of the frame by the build for `isa`, or by the core's
-            // portable compositor (what non-x86 targets run) for `None`: the reference
-            // for every build, the baseline x86-64 one included.
-            let composite_from = |isa: Option<Isa>, axes: &[RleAxis<'_>]| -> Vec<Rgba> {
-                let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
-                let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
-                let mut rows = vec![[0u16; 4]; 128];
-                let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
-                let go = &mut || true;
-                let all = 0..frame.view.dims[2];
-                match isa {
-                    Some(isa) => composite_band_until(
-                        isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, all, go,
-                    ),
-                    None => render::composite_band_until(
-                        &mut vol, &frame, &tables, &mut img, &mut rows, None, all, go,
-                    ),
+            // Plain, and supersampled (whose phases the kernels composite).
+            for ss in [1, 2] {
+                let mut unused = Box::new(ShadeTable::UNSHADED);
+                let mut frame =
+                    Frame::supersampled(&grid, &cam, &settings, &mut unused, None, ss).unwrap();
+                // Opacities past one too: the vector kernels must match the scalar ones for
+                // any 16-bit input, not only for the tables a frame builds.
+                let mut opacity = [0u16; 256];
+                for (o, c) in opacity.iter_mut().zip(frame.color.iter_mut()) {
+                    *o = rnd() as u16;
+                    *c = lane(rnd());
                 }
-                .unwrap();
-                img.pixels().to_vec()
-            };
-            let composite = |isa: Option<Isa>| composite_from(isa, &axes);
-            let portable = composite(None);
-            // With the rows' flat bits copied from the tables (only the x86-64 loops that
-            // always exclude flat voxels do), every build's frame is the one it marks the
-            // rows for.
-            for isa in levels.iter().map(|&i| Some(i)).chain([None]) {
-                assert!(
-                    composite_from(isa, &tabled) == portable,
-                    "{} differs with the tables of flat voxels",
-                    isa.map_or("the portable compositor", Isa::name)
-                );
+                frame.opacity = OpacityTable::from(opacity);
+                let tables = frame.tables(&shade, None);
+                let [iw, ih] = frame.view.intermediate;
+                let pix = view::max_intermediate_pixels(dims).max(iw * ih);
+                // One composite of the frame by the build for `isa`, or by the core's
+                // portable compositor (what non-x86 targets run) for `None`: the reference
+                // for every build, the baseline x86-64 one included.
+                let composite_from = |isa: Option<Isa>, axes: &[RleAxis<'_>]| -> Vec<Rgba> {
+                    let mut vol = RleVolume::new(grid, [axes[0], axes[1], axes[2]]).unwrap();
+                    let (mut px, mut links) = (vec![[0u16; 4]; pix], vec![0; pix]);
+                    let mut rows = vec![[0u16; 4]; 128];
+                    let mut img = Intermediate::new(iw, ih, &mut px, &mut links).unwrap();
+                    let go = &mut || true;
+                    let all = 0..frame.view.dims[2];
+                    match isa {
+                        Some(isa) => composite_band_until(
+                            isa, &mut vol, &frame, &tables, &mut img, &mut rows, None, all, go,
+                        ),
+                        None => render::composite_band_until(
+                            &mut vol, &frame, &tables, &mut img, &mut rows, None, all, go,
+                        ),
+                    }
+                    .unwrap();
+                    img.pixels().to_vec()
+                };
+                let composite = |isa: Option<Isa>| composite_from(isa, &axes);
+                let portable = composite(None);
+                // With the rows' flat bits copied from the tables (only the x86-64 loops that
+                // always exclude flat voxels do), every build's frame is the one it marks the
+                // rows for.
+                for isa in levels.iter().map(|&i| Some(i)).chain([None]) {
+                    assert!(
+                        composite_from(isa, &tabled) == portable,
+                        "{} differs with the tables of flat voxels",
+                        isa.map_or("the portable compositor", Isa::name)
+                    );
+                }
+                assert!(portable.iter().any(|p| p[3] != 0), "nothing was composited");
+                let images: Vec<Vec<Rgba>> =
+                    levels.iter().map(|&isa| composite(Some(isa))).collect();
+                for (isa, img) in levels.iter().zip(&images) {
+                    assert!(
+                        img == &portable,
+                        "{} differs from the portable compositor",
+                        isa.name()
+                    );
+                }
+                if ss == 1 {
+                    portables.push(portable);
+                }
             }
-            assert!(portable.iter().any(|p| p[3] != 0), "nothing was composited");
-            let images: Vec<Vec<Rgba>> = levels.iter().map(|&isa| composite(Some(isa))).collect();
-            for (isa, img) in levels.iter().zip(&images) {
-                assert!(
-                    img == &portable,
-                    "{} differs from the portable compositor",
-                    isa.name()
-                );
-            }
-            portables.push(portable);
         }
         // The rule for flat voxels was exercised: it changed the frame.
         assert!(portables[0] != portables[2] && portables[1] != portables[3]);
