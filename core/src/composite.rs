@@ -721,15 +721,19 @@ fn composite_slice_supersampled(
         }
         let (top_runs, bot_runs) = (row_of(jt).0, row_of(jt + 1).0);
         let (pixels, opaque) = img.scanline_mut(v - img.row0);
-        // Composite mode without flat voxels to exclude, the kernels' case: the pixels
-        // that reach the rows' non-zero entries, phase by phase.
-        if tables.mode == Mode::Composite && !(top.has_flat || bot.has_flat) {
+        // Composite mode, the kernels' case: the pixels that reach the rows' non-zero
+        // entries, phase by phase.
+        if tables.mode == Mode::Composite {
             let (lo, hi) = match (top.extent(), bot.extent()) {
                 (Some(a), Some(b)) => (a.0.min(b.0), a.1.max(b.1)),
                 (Some(a), None) | (None, Some(a)) => a,
                 (None, None) => (0, 0),
             };
-            let rows = (&top.buf[..], &bot.buf[..]);
+            let rows = Phases {
+                top: top.buf,
+                bot: bot.buf,
+                flat: (top.has_flat || bot.has_flat).then_some((&*top.flat, &*bot.flat)),
+            };
             over_phases(pixels, opaque, rows, (lo, hi), (tu, ss, frv), tables, kern);
             continue;
         }
@@ -777,10 +781,18 @@ fn composite_slice_supersampled(
     Ok(())
 }
 
+/// The two rows a supersampled scanline reads, for [`over_phases`]: their entries, and
+/// their flat bits when they hold flat voxels that samples leave out of their colour.
+struct Phases<'r> {
+    top: &'r [Rgba],
+    bot: &'r [Rgba],
+    flat: Option<(&'r [Rgba], &'r [Rgba])>,
+}
+
 /// The pixels of a scanline of a slice supersampled `ss` times (Q15 offset `tu`, the
 /// scanline's vertical fraction `frv`) that read entries `lo..hi` of its rows (their
-/// non-zero extent), in composite mode with no flat voxel excluded: each run of open
-/// pixels composited by the kernels one phase at a time.
+/// non-zero extent), in composite mode: each run of open pixels composited by the
+/// kernels one phase at a time (with flat voxels excluded, by [`over_run_flat`]).
 ///
 /// The pixels `u ≡ p (mod ss)` of a scanline sample the slice at one fraction, a voxel
 /// apart: pixel `ss·m + p` samples at `m + ⌊p·ONE/ss⌋ − tu` (in Q15, since
@@ -799,7 +811,7 @@ fn composite_slice_supersampled(
 fn over_phases(
     pixels: &mut [Rgba],
     opaque: &mut [opaque::Word],
-    (top, bot): (&[Rgba], &[Rgba]),
+    Phases { top, bot, flat }: Phases<'_>,
     (lo, hi): (usize, usize),
     (tu, ss, frv): (i64, i64, u32),
     t: &SliceTables<'_>,
@@ -828,13 +840,17 @@ fn over_phases(
     });
     let cap = top.len().min(bot.len()) as i64;
     let mut px = [[0u16; 4]; CHUNK];
+    // The pixels [`over_run_flat`] composites again, as they were.
+    let mut kept = [[0u16; 4]; CHUNK];
     let mut runs = opaque::OpenRuns::new(ua, ub);
     while let Some((u, e)) = runs.next(opaque, width) {
         if e - u < PHASED_RUN || ss > phases.len() as i64 {
             for (x, q) in pixels.iter_mut().enumerate().take(e).skip(u) {
                 let (il, fru) = sample_at(x, ss, tu);
                 let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
-                if il >= -1 && composite_pixel(q, top, bot, (il + 1) as usize, w, 0, t) {
+                let bl = (il + 1).max(0) as usize;
+                let f = flat.map_or(0, |(ft, fb)| flat::taps(ft, fb, bl));
+                if il >= -1 && composite_pixel(q, top, bot, bl, w, f, t) {
                     opaque::mark(opaque, x);
                 }
             }
@@ -866,7 +882,10 @@ fn over_phases(
                 for (j, q) in chunk.iter_mut().enumerate() {
                     *q = pixels.get(u0 + step * j).copied().unwrap_or_default();
                 }
-                let highest = kern.over_run(chunk, tt, bb, w);
+                let highest = match flat {
+                    Some(f) => over_run_flat(chunk, tt, bb, w, f, bl as usize, &mut kept, kern),
+                    None => kern.over_run(chunk, tt, bb, w),
+                };
                 for (j, q) in chunk.iter().enumerate() {
                     let x = u0 + step * j;
                     if let Some(o) = pixels.get_mut(x) {
@@ -1603,7 +1622,8 @@ mod tests {
     }
 
     /// The supersampled compositor's phases against the per-pixel definition: random
-    /// rows (non-zero inside random extents, some reaching the buffer's end), random
+    /// rows (non-zero inside random extents, some reaching the buffer's end; in half the
+    /// cases a third of their voxels flat and left out of samples' colours), random
     /// scanlines with opaque stretches, supersampling factors 2 to 4 at offsets that are
     /// whole voxels or not, and termination thresholds from zero to one. Every pixel
     /// and every opaque bit must come out as [`composite_pixel`] leaves it.
@@ -1633,6 +1653,21 @@ mod tests {
                 }
             }
             let (top, bot) = (&rows[0][..ni + 2], &rows[1][..ni + 2]);
+            // Flat voxels in half the cases, with the rule applied to them.
+            let mut flats = [[[0u16; 4]; flat::words(160)]; 2];
+            let with_flat = next(1) == 0;
+            if with_flat {
+                for f in flats.iter_mut() {
+                    for e in lo..hi {
+                        if next(2) == 0 {
+                            let w = &mut f[e / 64];
+                            let bits = bytemuck::cast::<Rgba, u64>(*w) | 1 << (e % 64);
+                            *w = bytemuck::cast(bits);
+                        }
+                    }
+                }
+            }
+            let (ft, fb) = (&flats[0][..flat::words(ni)], &flats[1][..flat::words(ni)]);
             let tu = match next(2) {
                 0 => (next(width / ss as usize + 2) * ONE as usize) as i64,
                 _ => next(ONE as usize * (width / ss as usize + 2)) as i64,
@@ -1663,23 +1698,19 @@ mod tests {
                 }
                 let (il, fru) = sample_at(u, ss, tu);
                 let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
-                if il >= -1
-                    && il < ni as i64
-                    && composite_pixel(p, top, bot, (il + 1) as usize, w, 0, &t)
-                {
+                let bl = (il + 1).max(0) as usize;
+                let f = if with_flat { flat::taps(ft, fb, bl) } else { 0 };
+                if il >= -1 && il < ni as i64 && composite_pixel(p, top, bot, bl, w, f, &t) {
                     opaque::mark(&mut want_closed, u);
                 }
             }
             let (pixels, words) = (&mut px[..width], &mut closed[..opaque::words(width)]);
-            over_phases(
-                pixels,
-                words,
-                (top, bot),
-                (lo, hi),
-                (tu, ss, frv),
-                &t,
-                &Portable,
-            );
+            let rows = Phases {
+                top,
+                bot,
+                flat: with_flat.then_some((ft, fb)),
+            };
+            over_phases(pixels, words, rows, (lo, hi), (tu, ss, frv), &t, &Portable);
             assert_eq!(px[..width], want[..width], "case {case}: pixels");
             assert_eq!(closed, want_closed, "case {case}: opaque bits");
         }
