@@ -168,7 +168,7 @@ pub struct SizeResult {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Supersampled {
     pub factor: usize,
-    /// Median over the views of one pass (its frames are several times the plain ones').
+    /// Median over the views of each view's best of the rounds, as the plain frames'.
     pub sw: Stats,
     pub psnr: Option<f64>,
 }
@@ -459,14 +459,17 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             _ => None,
         };
         if let Some((factor, r)) = rs.as_mut() {
+            // Frame 0 once untimed, then `rounds` passes, each view's best time kept, as
+            // for the plain frames.
             let mut img = Vec::new();
-            let mut t = vec![0.0; n];
-            for (slot, f) in std::iter::once((usize::MAX, 0)).chain((0..n).map(|f| (f, f))) {
+            let mut t = vec![f64::INFINITY; n];
+            let timed = (0..opts.rounds.max(1)).flat_map(|_| (0..n).map(|f| (f, f)));
+            for (slot, f) in std::iter::once((usize::MAX, 0)).chain(timed) {
                 let cam = camera(frame_view(f, n), size);
                 let start = Instant::now();
                 r.render_into(&mut src, &cam, &look, &mut img)?;
-                if slot < n {
-                    t[slot] = start.elapsed().as_secs_f64() * 1e3;
+                if let Some(best) = t.get_mut(slot) {
+                    *best = best.min(start.elapsed().as_secs_f64() * 1e3);
                 }
             }
             sr.supersampled = Some(Supersampled {

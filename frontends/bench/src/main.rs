@@ -596,9 +596,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                  pixels per voxel of a slice (`--supersample {0}`: each slice resampled \
                  bilinearly at the finer grid), so the warp no longer upsamples a \
                  volume-resolution intermediate image, as the plain frame and VolPack do. One \
-                 thread; ms/frame is the median over the same {1} views of one pass \
-                 (the plain frame's is the best of {2} rounds, as above); PSNR at the same \
-                 view against the same reference.\n",
+                 thread; ms/frame is the median over the same {1} views of each view's \
+                 best of {2} rounds, as for the plain frame; PSNR at the same view against \
+                 the same reference.\n",
                 cli.supersample, cli.frames, cli.rounds
             );
             block.push_str(&supersampled);
