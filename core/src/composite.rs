@@ -807,7 +807,6 @@ struct Phases<'r> {
 /// 127–128 → 45.5–46.0 ms, the head 22.9 → 12.7–13.0, brainsmall 4.0 → 2.4–2.5. The
 /// head's four frames took half the instructions (callgrind, x86-64-v3: 1280 M → 655 M).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn over_phases(
     pixels: &mut [Rgba],
     opaque: &mut [opaque::Word],
