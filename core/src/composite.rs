@@ -737,6 +737,9 @@ fn composite_slice_supersampled(
             over_phases(pixels, opaque, rows, (lo, hi), (tu, ss, frv), tables, kern);
             continue;
         }
+        // MIP: each pixel the rows' runs reach, pixel by pixel. No pixel ever becomes
+        // opaque, and MIP rows hold no flat bits (MIP has no shading to exclude them
+        // from).
         let (top_runs, bot_runs) = (row_of(jt).0, row_of(jt + 1).0);
         let spans = MergedSpans {
             a: Spans::new(top_runs).peekable(),
@@ -748,32 +751,22 @@ fn composite_slice_supersampled(
             let (ua, ub) = span_pixels(a, b, tu, ss);
             let (ua, ub) = (ua.clamp(0, width as i64), ub.clamp(0, width as i64));
             let (ua, ub) = (ua as usize, ub as usize);
-            let mut runs = opaque::OpenRuns::new(ua, ub);
-            while let Some((u, e)) = runs.next(opaque, width) {
-                let (mut q, mut r) = ((u as i64 * one) / ss, (u as i64 * one) % ss);
-                for (u, px) in pixels.iter_mut().enumerate().take(e).skip(u) {
-                    let pu = q - tu;
-                    q += step;
-                    r += carry;
-                    if r >= ss {
-                        q += 1;
-                        r -= ss;
-                    }
-                    let il = pu.div_euclid(one);
-                    let fru = pu.rem_euclid(one) as u32;
-                    if il < -1 || il >= ni as i64 {
-                        continue;
-                    }
-                    let bl = (il + 1) as usize;
-                    let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
-                    let f = match top.has_flat || bot.has_flat {
-                        true => flat::taps(top.flat, bot.flat, bl),
-                        false => 0,
-                    };
-                    if composite_pixel(px, top.buf, bot.buf, bl, w, f, tables) {
-                        opaque::mark(opaque, u);
-                    }
+            let (mut q, mut r) = ((ua as i64 * one) / ss, (ua as i64 * one) % ss);
+            for px in pixels.iter_mut().take(ub).skip(ua) {
+                let pu = q - tu;
+                q += step;
+                r += carry;
+                if r >= ss {
+                    q += 1;
+                    r -= ss;
                 }
+                let il = pu.div_euclid(one);
+                let fru = pu.rem_euclid(one) as u32;
+                if il < -1 || il >= ni as i64 {
+                    continue;
+                }
+                let w = fixed::bilinear_weights(ONE - fru, ONE - frv);
+                composite_pixel(px, top.buf, bot.buf, (il + 1) as usize, w, 0, tables);
             }
         }
     }
