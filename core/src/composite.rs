@@ -815,7 +815,6 @@ fn over_phases(
         return;
     }
     let ss = ss.max(1);
-    let one = ONE as i64;
     let width = pixels.len();
     let thr = t.ert.max(1);
     // The pixels whose left entry lies in lo − 1..hi.
@@ -827,8 +826,7 @@ fn over_phases(
     // Each phase's first entry and weights (factors are at most 4; larger ones go
     // pixel by pixel).
     let phases: [(i64, [u32; 4]); 4] = core::array::from_fn(|p| {
-        let at = p as i64 * one / ss - tu;
-        let (d, fru) = (at.div_euclid(one), at.rem_euclid(one) as u32);
+        let (d, fru) = sample_at(p, ss, tu);
         (d + 1, fixed::bilinear_weights(ONE - fru, ONE - frv))
     });
     let cap = top.len().min(bot.len()) as i64;
@@ -859,16 +857,15 @@ fn over_phases(
             while m < m_end {
                 let len = ((m_end - m) as usize).min(CHUNK);
                 let (u0, step) = ((ss * m + p) as usize, ss as usize);
-                let bl = m + d1;
+                let first = usize::try_from(m + d1);
                 m += len as i64;
+                let Ok(bl) = first else {
+                    continue;
+                };
                 let (Some(chunk), Some(tt), Some(bb)) = (
                     px.get_mut(..len),
-                    usize::try_from(bl)
-                        .ok()
-                        .and_then(|b| top.get(b..b + len + 1)),
-                    usize::try_from(bl)
-                        .ok()
-                        .and_then(|b| bot.get(b..b + len + 1)),
+                    top.get(bl..bl + len + 1),
+                    bot.get(bl..bl + len + 1),
                 ) else {
                     continue;
                 };
@@ -876,7 +873,7 @@ fn over_phases(
                     *q = pixels.get(u0 + step * j).copied().unwrap_or_default();
                 }
                 let highest = match flat {
-                    Some(f) => over_run_flat(chunk, tt, bb, w, f, bl as usize, &mut kept, kern),
+                    Some(f) => over_run_flat(chunk, tt, bb, w, f, bl, &mut kept, kern),
                     None => kern.over_run(chunk, tt, bb, w),
                 };
                 for (j, q) in chunk.iter().enumerate() {
