@@ -103,6 +103,9 @@ fn phase_headers(threads: Option<usize>) -> Vec<String> {
         format!("{t}T waiting ms"),
         format!("{t} 1T frames side by side ms"),
         "their throughput ×".into(),
+        "1T back to back ms".into(),
+        format!("{t}T back to back ms"),
+        format!("{t}T back to back speed-up"),
     ]
 }
 
@@ -131,6 +134,13 @@ fn phase_rows(results: &[SceneResult]) -> Vec<Vec<String>> {
                 opt(
                     s.side_by_side
                         .and_then(|x| ratio(threads as f64 * s.sw.median, Some(x.median))),
+                    2,
+                ),
+                opt(s.back_to_back.map(|(o, _)| o.median), 2),
+                opt(s.back_to_back.map(|(_, n)| n.median), 2),
+                opt(
+                    s.back_to_back
+                        .and_then(|(o, n)| ratio(o.median, Some(n.median))),
                     2,
                 ),
             ]);
@@ -329,6 +339,7 @@ mod tests {
                     warp: 0.06,
                 }),
                 side_by_side: Some(Stats { median: 1.25 }),
+                back_to_back: Some((Stats { median: 0.9 }, Stats { median: 0.48 })),
                 sw_base: Some(Stats { median: 2.0 }),
                 threads_identical: Some(true),
                 vp: Some(Stats { median: 4.0 }),
@@ -357,7 +368,7 @@ mod tests {
     fn the_phase_table_shows_extra_cpu_time_and_waiting() {
         let m = phase_markdown_table(&sample());
         assert!(
-            m.contains("| s (2×3×4) | 256×256 | 0.050 | 0.80 | 0.100 | 0.050 | 0.50 | 0.060 | 0.88 | 1.10 | 0.040 | 1.25 | 1.60 |"),
+            m.contains("| s (2×3×4) | 256×256 | 0.050 | 0.80 | 0.100 | 0.050 | 0.50 | 0.060 | 0.88 | 1.10 | 0.040 | 1.25 | 1.60 | 0.90 | 0.48 | 1.88 |"),
             "{m}"
         );
         let mut one = sample();
