@@ -16,7 +16,7 @@ use shearwarp_core::view::{self, Camera, Factorization};
 use shearwarp_core::warp;
 use shearwarp_core::Error;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// A thread's starting band: first scanline, scanlines, pixels, opaque-pixel bitmap,
@@ -36,7 +36,7 @@ type Own<'a, S> = (
     &'a mut Vec<Rgba>,
     S,
     &'a mut Duration,
-    Option<&'a mut ShadeTable>,
+    Option<&'a Mutex<Box<ShadeTable>>>,
 );
 
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
@@ -204,7 +204,13 @@ pub struct Renderer {
     /// in pairs in one process, medians of 180 each, two threads): 0.94–1.00× on
     /// brainsmall in eight of ten runs (0.74 and 0.79 in the other two), 0.98–1.01× on
     /// the head in four.
-    own_shade: Vec<Box<ShadeTable>>,
+    ///
+    /// The job that wakes the workers at the start of a frame fills these tables too,
+    /// for the frame's lights and rotation, so that a worker already awake (frames back
+    /// to back, as an animation renders them) fills its table during the calling
+    /// thread's setup and starts its band at once; a worker that was asleep fills it
+    /// when it wakes, as before.
+    own_shade: Vec<Arc<Mutex<Box<ShadeTable>>>>,
     supersample: usize,
     flat_voxels: FlatVoxels,
     fov: Option<f64>,
@@ -256,7 +262,7 @@ impl Renderer {
             shadow_rows: vec![0; shadow::row_buffer_len(m)],
             shade0: Box::new(ShadeTable::UNSHADED),
             own_shade: (1..threads)
-                .map(|_| Box::new(ShadeTable::UNSHADED))
+                .map(|_| Arc::new(Mutex::new(Box::new(ShadeTable::UNSHADED))))
                 .collect(),
             supersample: 1,
             flat_voxels: FlatVoxels::Blended,
@@ -378,8 +384,22 @@ impl Renderer {
         // 0.06–0.12 ms, and the compositing phase took 0.87–0.92 ms instead of
         // 0.95–0.98 ms on brainsmall, 3.86–4.11 ms instead of 4.45–4.61 ms on the head.
         if let Some(pool) = &self.pool {
-            if !look.shadows {
-                pool.spawn(|| {});
+            match (&look.lighting, look.shadows) {
+                (_, true) => {}
+                (Some(l), false) => {
+                    let rotation = view::rotation(camera.rotate_x, camera.rotate_y);
+                    for table in &self.own_shade {
+                        let (table, l, isa) = (Arc::clone(table), l.clone(), self.isa);
+                        pool.spawn(move || {
+                            // A failed fill (invalid lights) is the band's to report:
+                            // it fills again, and returns the error.
+                            if let Ok(mut t) = table.lock() {
+                                let _ = isa::fill_shade(isa, &mut t, &l, &rotation);
+                            }
+                        });
+                    }
+                }
+                (None, false) => pool.spawn(|| {}),
             }
         }
         let settings = Settings {
@@ -502,11 +522,12 @@ impl Renderer {
         let work =
             |(t, (rows, mut src, busy, shade), start): (usize, Own<'_, S>, _)| -> Result<(), Error> {
                 let began = Instant::now();
-                let own;
+                let (mut held, own);
                 let tables = match (shade, lights) {
                     (Some(sh), Some(l)) => {
-                        isa::fill_shade(isa, sh, l, &rotation)?;
-                        own = frame.tables(sh, None);
+                        held = sh.lock().map_err(|_| Error::Source { reason: PANICKED })?;
+                        isa::fill_shade(isa, &mut held, l, &rotation)?;
+                        own = frame.tables(&held, None);
                         &own
                     }
                     _ => &tables,
@@ -567,7 +588,7 @@ impl Renderer {
                 Ok(())
             };
         self.times.busy.resize(threads, Duration::ZERO);
-        let shades = std::iter::once(None).chain(self.own_shade.iter_mut().map(|s| Some(&mut **s)));
+        let shades = std::iter::once(None).chain(self.own_shade.iter().map(|s| Some(&**s)));
         let own = self
             .rows
             .iter_mut()
