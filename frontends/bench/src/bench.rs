@@ -146,9 +146,11 @@ fn side_by_side<S: SliceSource + Clone + Send + Sync>(
 /// The main loop lets the renderers take turns frame by frame, so that load from other
 /// processes falls on all of them alike; there a threaded renderer's workers have gone
 /// to sleep before each of its frames, and waking one costs a frame tens of
-/// microseconds on a virtual machine. An animation or the viewer renders frames one
-/// after the other, with the workers still awake: this is that speed-up. Each turn
-/// starts with one untimed frame (the turn's last view), which both renderers get.
+/// microseconds on a virtual machine. Back to back, with nothing between frames, the
+/// workers are still awake: the difference is the wake's cost. (Rayon's workers fall
+/// asleep within tens of microseconds, so a frontend that encodes or presents each
+/// frame wakes them as the main loop does.) Each turn starts with one untimed frame
+/// (the turn's last view), which both renderers get.
 fn back_to_back<R, E>(
     one: &mut R,
     many: &mut R,
@@ -181,7 +183,7 @@ pub struct SizeResult {
     /// One-thread frames rendered side by side, one per thread ([`side_by_side`]).
     pub side_by_side: Option<Stats>,
     /// The one-thread and the threaded renderer each rendering the turn's frames back
-    /// to back, as an animation or the viewer does ([`back_to_back`]).
+    /// to back, nothing between them ([`back_to_back`]).
     pub back_to_back: Option<(Stats, Stats)>,
     /// The baseline (SSE2) build on one thread, when the main runs use a wider one.
     pub sw_base: Option<Stats>,

@@ -584,12 +584,12 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
                  renderer and nothing written in common: the time of the slowest, and how \
                  many frames a second that gives against one thread alone, the most \
                  threads can gain on this host for this work before they share anything. \
-                 The last three render the turn back to back, as an animation or the \
-                 viewer does: each round the one-thread renderer's {0} frames one after \
-                 the other, then the threaded renderer's, each view's best of the rounds. \
-                 In the main table the renderers take turns frame by frame, so the \
-                 threaded renderer's worker has gone to sleep before each of its frames \
-                 and the frame pays for waking it; back to back it is still awake.\n",
+                 The last three render the turn back to back, nothing between frames: \
+                 each round the one-thread renderer's {0} frames one after the other, \
+                 then the threaded renderer's, each view's best of the rounds. In the \
+                 main table the renderers take turns frame by frame, so the threaded \
+                 renderer's worker has gone to sleep before each of its frames and the \
+                 frame pays for waking it; back to back it is still awake.\n",
                 cli.frames
             );
             block.push_str(&phases);

@@ -207,7 +207,7 @@ pub struct Renderer {
     ///
     /// The job that wakes the workers at the start of a frame fills these tables too,
     /// for the frame's lights and rotation, so that a worker already awake (frames back
-    /// to back, as an animation renders them) fills its table during the calling
+    /// to back, with nothing between them) fills its table during the calling
     /// thread's setup and starts its band at once; a worker that was asleep fills it
     /// when it wakes, as before.
     own_shade: Vec<Arc<Mutex<Box<ShadeTable>>>>,
