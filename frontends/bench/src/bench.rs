@@ -104,6 +104,19 @@ impl Phases {
     }
 }
 
+/// Renders `cam` with `r` into `img` and returns the time it took, ms.
+fn render_ms<S: SliceSource + Clone + Send>(
+    r: &mut Renderer,
+    src: &mut S,
+    cam: &Camera,
+    look: &Look,
+    img: &mut Vec<[u8; 4]>,
+) -> Result<f64, shearwarp_core::Error> {
+    let t = Instant::now();
+    r.render_into(src, cam, look, img)
+        .map(|()| t.elapsed().as_secs_f64() * 1e3)
+}
+
 /// Renders `cam` with every renderer of `side` at once, each on a thread of its own (the
 /// calling thread the first) into its own image, and returns the slowest one's time, ms.
 /// The renderers share nothing they write: this is how fast a frame renders while the
@@ -119,9 +132,7 @@ fn side_by_side<S: SliceSource + Clone + Send + Sync>(
     let render = |(r, img): &mut (Renderer, Vec<[u8; 4]>)| {
         let mut src = src.clone();
         start.wait();
-        let t = Instant::now();
-        r.render_into(&mut src, cam, look, img)
-            .map(|()| t.elapsed().as_secs_f64() * 1e3)
+        render_ms(r, &mut src, cam, look, img)
     };
     let Some((first, others)) = side.split_first_mut() else {
         return Ok(0.0);
@@ -428,11 +439,8 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
             let view = frame_view(f, n);
             let cam = camera(view, size);
             // Every renderer writes into buffers kept across frames, as VolPack does.
-            let mut render_ms = |r: &mut Renderer, img: &mut Vec<[u8; 4]>| {
-                let t = Instant::now();
-                r.render_into(&mut src, &cam, &look, img)
-                    .map(|()| t.elapsed().as_secs_f64() * 1e3)
-            };
+            let mut render_ms =
+                |r: &mut Renderer, img: &mut Vec<[u8; 4]>| render_ms(r, &mut src, &cam, &look, img);
             let ms1 = render_ms(&mut r1, &mut img1)?;
             // The threaded and the baseline-build renderer, when present; each image
             // must equal the first renderer's.
@@ -474,9 +482,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
                 let (mut img, n) = (Vec::new(), opts.frames);
                 let mut render = |r: &mut Renderer, f: usize| {
                     let cam = camera(frame_view(f, n), size);
-                    let t = Instant::now();
-                    r.render_into(&mut src, &cam, &look, &mut img)
-                        .map(|()| t.elapsed().as_secs_f64() * 1e3)
+                    render_ms(r, &mut src, &cam, &look, &mut img)
                 };
                 Some(back_to_back(&mut r1, rn, n, opts.rounds, &mut render)?)
             }

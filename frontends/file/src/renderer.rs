@@ -36,7 +36,7 @@ type Own<'a, S> = (
     &'a mut Vec<Rgba>,
     S,
     &'a mut Duration,
-    Option<&'a Mutex<Box<ShadeTable>>>,
+    Option<&'a Mutex<ShadeTable>>,
 );
 
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
@@ -210,7 +210,7 @@ pub struct Renderer {
     /// to back, with nothing between them) fills its table during the calling
     /// thread's setup and starts its band at once; a worker that was asleep fills it
     /// when it wakes, as before.
-    own_shade: Vec<Arc<Mutex<Box<ShadeTable>>>>,
+    own_shade: Vec<Arc<Mutex<ShadeTable>>>,
     supersample: usize,
     flat_voxels: FlatVoxels,
     fov: Option<f64>,
@@ -262,7 +262,7 @@ impl Renderer {
             shadow_rows: vec![0; shadow::row_buffer_len(m)],
             shade0: Box::new(ShadeTable::UNSHADED),
             own_shade: (1..threads)
-                .map(|_| Arc::new(Mutex::new(Box::new(ShadeTable::UNSHADED))))
+                .map(|_| Arc::new(Mutex::new(ShadeTable::UNSHADED)))
                 .collect(),
             supersample: 1,
             flat_voxels: FlatVoxels::Blended,
