@@ -48,8 +48,9 @@ pub struct Options {
     /// Compare the supersampled runs' images and the plain ones at the same sizes
     /// against the reference even where `psnr` is off (the scaling series).
     pub supersample_psnr: bool,
-    /// How shearwarp's samples take flat voxels into their colour.
-    pub flat_voxels: FlatVoxels,
+    /// How shearwarp's samples take flat voxels into their colour; `None` leaves it to
+    /// each volume's share of them ([`Encoded::auto_flat_voxels`]).
+    pub flat_voxels: Option<FlatVoxels>,
 }
 
 /// Median of a set of timings, ms.
@@ -227,8 +228,12 @@ pub struct SceneResult {
     pub vp_prep: Option<f64>,
     /// Bytes of shearwarp's three RLE copies and VolPack's.
     pub sw_bytes: usize,
-    /// Non-transparent voxels shearwarp stores per axis copy.
+    /// Non-transparent voxels shearwarp stores per axis copy, and how many of those
+    /// have a zero gradient.
     pub sw_visible: usize,
+    pub sw_flat: usize,
+    /// How shearwarp's frames took the flat voxels.
+    pub flat_voxels: FlatVoxels,
     pub vp_bytes: Option<usize>,
     pub sizes: Vec<SizeResult>,
     pub threads: Option<usize>,
@@ -328,22 +333,25 @@ fn save_strip(path: &std::path::Path, size: usize, images: &[&[[u8; 3]]]) -> std
     metrics::save_png(path, w, size, &out)
 }
 
-/// Times shearwarp's preprocessing `runs` times; returns the last encoding and the median.
-/// With flat voxels excluded from samples' colours, the tables of flat voxels the
-/// compositor then reads are part of it ([`Encoded::build_flat_rows`]).
+/// Times shearwarp's preprocessing `runs` times; returns the last encoding, the way its
+/// frames take flat voxels (`flat`, or the volume's own when `None`) and the median
+/// time. Choosing the way and, with flat voxels excluded from samples' colours, the
+/// tables of flat voxels the compositor then reads are part of it
+/// ([`Encoded::build_flat_rows`]).
 fn sw_preprocess(
     vol: &Loaded,
     scene: &Scene,
     runs: usize,
-    flat: FlatVoxels,
-) -> Result<(Encoded, f64), Box<dyn Error>> {
+    flat: Option<FlatVoxels>,
+) -> Result<(Encoded, FlatVoxels, f64), Box<dyn Error>> {
     let class = scene.look.classification();
-    let encode = || -> Result<Encoded, Box<dyn Error>> {
+    let encode = || -> Result<(Encoded, FlatVoxels), Box<dyn Error>> {
         let mut enc = scene::encode_threads(&vol.raw, &class, 1)?;
-        if flat == FlatVoxels::Excluded {
+        let way = flat.unwrap_or_else(|| enc.auto_flat_voxels());
+        if way == FlatVoxels::Excluded {
             enc.build_flat_rows()?;
         }
-        Ok(enc)
+        Ok((enc, way))
     };
     let mut times = Vec::new();
     // Earlier runs are dropped at the end of each iteration, so at most one is alive.
@@ -353,9 +361,9 @@ fn sw_preprocess(
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let t = Instant::now();
-    let enc = encode()?;
+    let (enc, way) = encode()?;
     times.push(t.elapsed().as_secs_f64() * 1e3);
-    Ok((enc, Stats::of(&times).median))
+    Ok((enc, way, Stats::of(&times).median))
 }
 
 /// Times VolPack's preprocessing `runs` times; returns the last scene and the median.
@@ -385,7 +393,13 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         scene.name,
         t.elapsed().as_secs_f64() * 1e3
     );
-    let (enc, sw_prep) = sw_preprocess(&vol, scene, opts.prep_runs, opts.flat_voxels)?;
+    let (enc, flat_voxels, sw_prep) = sw_preprocess(&vol, scene, opts.prep_runs, opts.flat_voxels)?;
+    let (visible, flat) = (enc.visible_voxels(), enc.flat_voxels());
+    eprintln!(
+        "  flat voxels {}: {:.2} % of the {visible} visible ones",
+        flat_voxels.name(),
+        100.0 * flat as f64 / visible.max(1) as f64
+    );
     let look = scene.look.look(enc.range)?;
     let mut vp = None;
     let mut vp_prep = None;
@@ -400,7 +414,9 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         sw_prep,
         vp_prep,
         sw_bytes: enc.bytes(),
-        sw_visible: enc.visible_voxels(),
+        sw_visible: visible,
+        sw_flat: flat,
+        flat_voxels,
         vp_bytes: vp.as_ref().map(VolPack::classified_bytes),
         sizes: Vec::new(),
         threads: opts.threads,
@@ -410,7 +426,7 @@ pub fn run_scene(scene: &Scene, opts: &Options) -> Result<SceneResult, Box<dyn E
         let renderer = |threads: usize, isa: Isa| {
             let mut r = Renderer::with_threads(&enc.grid, threads);
             r.set_isa(isa);
-            r.set_flat_voxels(opts.flat_voxels);
+            r.set_flat_voxels(flat_voxels);
             r
         };
         let mut r1 = renderer(1, opts.isa);

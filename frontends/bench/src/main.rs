@@ -98,9 +98,10 @@ struct Cli {
     #[arg(long, default_value_t = 2)]
     supersample: usize,
     /// How shearwarp's samples take voxels with a zero gradient into their colour:
-    /// blended like the others (the default), or excluded where voxels with a direction
-    /// are present (`shearwarp_core::composite::FlatVoxels`).
-    #[arg(long, value_enum, default_value_t = FlatVoxelsArg::Blended)]
+    /// blended like the others, or excluded where voxels with a direction are present
+    /// (`shearwarp_core::composite::FlatVoxels`); auto, the default as in the CLI,
+    /// excludes them in volumes where at least one in 16 visible voxels is flat.
+    #[arg(long, value_enum, default_value_t = FlatVoxelsArg::Auto)]
     flat_voxels: FlatVoxelsArg,
     /// Render the training scenes (volumes the benchmark does not time) with shearwarp
     /// alone, every way the benchmark renders, and exit: the training run of a
@@ -112,6 +113,7 @@ struct Cli {
 /// `--flat-voxels`.
 #[derive(Clone, Copy, ValueEnum)]
 enum FlatVoxelsArg {
+    Auto,
     Blended,
     Excluded,
 }
@@ -277,17 +279,19 @@ fn mb(b: usize) -> String {
 
 fn memory_table(results: &[SceneResult]) -> String {
     let mut out = String::from(
-        "| scene | voxels | non-transparent (per copy) | shearwarp RLE MB | VolPack RLE MB |\n\
-         |---|---:|---:|---:|---:|\n",
+        "| scene | voxels | non-transparent (per copy) | flat, of those | flat voxels | shearwarp RLE MB | VolPack RLE MB |\n\
+         |---|---:|---:|---:|---|---:|---:|\n",
     );
     for r in results {
         let n: usize = r.dims.iter().product();
         let _ = writeln!(
             out,
-            "| {} | {n} | {} ({:.1}%) | {} | {} |",
+            "| {} | {n} | {} ({:.1}%) | {:.2}% | {} | {} | {} |",
             r.name,
             r.sw_visible,
             100.0 * r.sw_visible as f64 / n.max(1) as f64,
+            100.0 * r.sw_flat as f64 / r.sw_visible.max(1) as f64,
+            r.flat_voxels.name(),
             mb(r.sw_bytes),
             r.vp_bytes.map(mb).unwrap_or_else(|| "–".into())
         );
@@ -394,8 +398,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         supersample: (cli.supersample > 1).then_some(cli.supersample),
         supersample_psnr: !cli.no_psnr,
         flat_voxels: match cli.flat_voxels {
-            FlatVoxelsArg::Blended => FlatVoxels::Blended,
-            FlatVoxelsArg::Excluded => FlatVoxels::Excluded,
+            FlatVoxelsArg::Auto => None,
+            FlatVoxelsArg::Blended => Some(FlatVoxels::Blended),
+            FlatVoxelsArg::Excluded => Some(FlatVoxels::Excluded),
         },
     };
     if cli.train {
@@ -638,5 +643,28 @@ fn main() -> ExitCode {
             eprintln!("shearwarp-bench: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_size_table_gives_each_scenes_flat_share_and_way() {
+        let r = SceneResult {
+            name: "s".into(),
+            dims: [10, 10, 10],
+            sw_visible: 400,
+            sw_flat: 100,
+            flat_voxels: FlatVoxels::Excluded,
+            sw_bytes: 1 << 20,
+            ..Default::default()
+        };
+        let t = memory_table(&[r]);
+        assert!(
+            t.contains("| s | 1000 | 400 (40.0%) | 25.00% | excluded | 1.0 | – |"),
+            "{t}"
+        );
     }
 }

@@ -318,6 +318,8 @@ mod tests {
             vp_prep: Some(40.0),
             sw_bytes: 1,
             sw_visible: 1,
+            sw_flat: 0,
+            flat_voxels: shearwarp_core::composite::FlatVoxels::Blended,
             vp_bytes: Some(2),
             threads: Some(2),
             sizes: vec![SizeResult {

@@ -119,13 +119,17 @@ enum Command {
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 enum FlatVoxelsArg {
+    Auto,
     Blended,
     Excluded,
 }
 
-impl From<FlatVoxelsArg> for FlatVoxels {
-    fn from(a: FlatVoxelsArg) -> Self {
-        match a {
+impl FlatVoxelsArg {
+    /// The way for `enc`: as asked, or as its share of flat voxels says
+    /// ([`Encoded::auto_flat_voxels`]).
+    fn resolve(self, enc: &Encoded) -> FlatVoxels {
+        match self {
+            FlatVoxelsArg::Auto => enc.auto_flat_voxels(),
             FlatVoxelsArg::Blended => FlatVoxels::Blended,
             FlatVoxelsArg::Excluded => FlatVoxels::Excluded,
         }
@@ -241,8 +245,10 @@ struct RenderOpts {
     /// Voxels with a zero gradient (plateaus, shaded as unoriented): blended into a
     /// sample's colour like the others, or excluded from it where voxels with a
     /// direction are present, as a ray caster normalising gradients per sample shades
-    /// them (parallel projection; costs time only where there are such voxels).
-    #[arg(long, value_enum, default_value_t = FlatVoxelsArg::Blended)]
+    /// them (parallel projection; costs time only where there are such voxels). Auto
+    /// excludes them when at least one in 16 of the visible voxels is flat (synthetic
+    /// and segmented volumes), and blends them otherwise (scanned data).
+    #[arg(long, value_enum, default_value_t = FlatVoxelsArg::Auto)]
     flat_voxels: FlatVoxelsArg,
     /// Projection: parallel (the default) or perspective (camera on +Z at the distance
     /// where the volume's bounding sphere fills --fov).
@@ -366,6 +372,8 @@ struct Prepared {
     encoded: Encoded,
     look: Look,
     camera: Camera,
+    /// How the frames take flat voxels (`--flat-voxels`, resolved for the volume).
+    flat_voxels: FlatVoxels,
 }
 
 fn default_opacity(range: (u16, u16), mode: ModeArg) -> Vec<(f64, f64)> {
@@ -460,7 +468,8 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         let look = look_of(o, tf.mode, color, lighting, true)?;
         (enc, look)
     };
-    if o.flat_voxels == FlatVoxelsArg::Excluded {
+    let flat_voxels = o.flat_voxels.resolve(&encoded);
+    if flat_voxels == FlatVoxels::Excluded {
         encoded.build_flat_rows()?;
     }
     let threads = thread_count(o)?;
@@ -471,6 +480,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         encoded,
         look,
         camera,
+        flat_voxels,
     })
 }
 
@@ -866,7 +876,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
                 r.set_isa(opts.isa.unwrap_or_else(Isa::detect));
                 r.set_supersample(opts.supersample)?;
-                r.set_flat_voxels(opts.flat_voxels.into());
+                r.set_flat_voxels(p.flat_voxels);
                 r.set_perspective(opts.perspective()?);
                 let r = std::cell::RefCell::new(r);
                 let (frames, ms) = render_out(
@@ -1077,7 +1087,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             let mut r = Renderer::with_threads(&p.encoded.grid, p.threads);
             r.set_isa(opts.isa.unwrap_or_else(Isa::detect));
             r.set_supersample(opts.supersample)?;
-            r.set_flat_voxels(opts.flat_voxels.into());
+            r.set_flat_voxels(p.flat_voxels);
             r.set_perspective(opts.perspective()?);
             // One output buffer for every frame, as a viewer keeps its window's and as
             // `shearwarp-bench` times it, so that the allocator is not part of the figure.
@@ -1102,6 +1112,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                         "threads": p.threads,
                         "isa": r.isa().name(),
                         "visible_voxels": p.encoded.visible_voxels(),
+                        "flat_voxels": p.flat_voxels.name(),
                         "rle_bytes": p.encoded.bytes(),
                         "frames": frames,
                         "median_ms": median(&times),
@@ -1117,7 +1128,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 );
             } else {
                 out.text(format_args!(
-                    "volume={} dims={}x{}x{} image={}x{} threads={} isa={} visible_voxels={} rle_bytes={}",
+                    "volume={} dims={}x{}x{} image={}x{} threads={} isa={} visible_voxels={} flat_voxels={} rle_bytes={}",
                     p.name,
                     p.dims[0],
                     p.dims[1],
@@ -1127,6 +1138,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     p.threads,
                     r.isa().name(),
                     p.encoded.visible_voxels(),
+                    p.flat_voxels.name(),
                     p.encoded.bytes()
                 ));
                 out.text(format_args!(

@@ -5,7 +5,7 @@ use crate::bigbuf;
 use crate::reslice;
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel};
-use shearwarp_core::composite::Mode;
+use shearwarp_core::composite::{FlatVoxels, Mode};
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::Lighting;
@@ -363,6 +363,22 @@ impl Encoded {
         }
         self.flat = tables;
         Ok(())
+    }
+
+    /// How to take this volume's flat voxels when the caller leaves it to the data:
+    /// [`FlatVoxels::for_volume`] of its voxels with a zero gradient among those stored
+    /// (one pass over a copy's voxels: 2 ms for spheres256's 3.8 M). A caller that
+    /// gets [`FlatVoxels::Excluded`] builds the tables with [`Encoded::build_flat_rows`].
+    pub fn auto_flat_voxels(&self) -> FlatVoxels {
+        FlatVoxels::for_volume(self.flat_voxels() as u64, self.visible_voxels() as u64)
+    }
+
+    /// Voxels stored with a zero gradient (per axis copy), of [`Encoded::visible_voxels`].
+    pub fn flat_voxels(&self) -> usize {
+        self.voxels[2]
+            .iter()
+            .filter(|v| v.normal == shearwarp_core::normal::ZERO_GRADIENT)
+            .count()
     }
 
     /// Non-transparent voxels stored (per axis copy).

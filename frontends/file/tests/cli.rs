@@ -452,6 +452,59 @@ fn json_and_quiet_output() {
     assert_eq!(err.lines().count(), 1, "{err}");
 }
 
+/// `--flat-voxels auto` (the default) excludes flat voxels from samples' colours in a
+/// volume of plateaus and blends them in scanned data, and renders as the way it picks.
+#[test]
+fn flat_voxels_follow_the_volume_by_default() {
+    let t = Tmp::new("flat");
+    // A ball of one value: its inside has no gradient.
+    let n = 32usize;
+    let c = (n as f64 - 1.0) / 2.0;
+    let ball: Vec<u8> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, i / n % n, i / (n * n));
+            let d2 = [x, y, z]
+                .map(|v| (v as f64 - c).powi(2))
+                .iter()
+                .sum::<f64>();
+            if d2 < 100.0 {
+                200
+            } else {
+                0
+            }
+        })
+        .collect();
+    std::fs::write(t.p("ball.u8.raw"), ball).unwrap();
+    std::fs::write(
+        t.p("ball.json"),
+        r#"{"dims_xyz": [32, 32, 32], "spacing_mm_xyz": [1, 1, 1],
+            "files": {"u8": {"file": "ball.u8.raw", "voxel_type": "u8"}}}"#,
+    )
+    .unwrap();
+    let way = |vol: &str, extra: &[&str]| {
+        let mut a = vec!["bench", vol, "--size", "32x32", "--frames", "1", "--json"];
+        a.extend_from_slice(extra);
+        let (code, out, err) = shearwarp(&a);
+        assert_eq!(code, 0, "{a:?}: {err}");
+        let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+        j["flat_voxels"].as_str().unwrap().to_string()
+    };
+    let ball = t.p("ball.json");
+    assert_eq!(way(&ball, &[]), "excluded");
+    assert_eq!(way(&ball, &["--flat-voxels", "blended"]), "blended");
+    assert_eq!(way(&head64(), &[]), "blended");
+    assert_eq!(way(&head64(), &["--flat-voxels", "excluded"]), "excluded");
+    let look = [ball.as_str(), "--shading", "--opacity", "0:0,200:0.5"];
+    let img = |way: &str, out: &str| {
+        let mut a = look.to_vec();
+        a.extend_from_slice(&["--flat-voxels", way]);
+        render(&a, &t.p(out))
+    };
+    let auto = img("auto", "auto.png");
+    assert_eq!(auto, img("excluded", "excluded.png"));
+    assert_ne!(auto, img("blended", "blended.png"));
+}
+
 /// Bad input of every kind the CLI adds: exit code 2, one line naming the file (or the
 /// option) and the problem.
 #[test]
