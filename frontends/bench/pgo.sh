@@ -12,8 +12,9 @@ source frontends/pgo.sh
 export SHEARWARP_BENCH_PGO="a proton-density MR brain series (256×256×20) and nested spheres of sides 96 and 192"
 
 # The training run reads the data directory the timed run is given, and renders flat
-# voxels the way it does: the rule's loops (`--flat-voxels excluded`) are instances of
-# their own, which a profile of the default way does not cover.
+# voxels the way it does: the rule's loops (`--flat-voxels excluded`, which `auto`
+# picks for the training spheres) are instances of their own, which a profile of the
+# other way does not cover.
 train_args=()
 args=("$@")
 for ((i = 0; i < ${#args[@]}; i++)); do
