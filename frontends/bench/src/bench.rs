@@ -228,9 +228,9 @@ pub struct SceneResult {
     pub vp_prep: Option<f64>,
     /// Bytes of shearwarp's three RLE copies and VolPack's.
     pub sw_bytes: usize,
-    /// Non-transparent voxels shearwarp stores per axis copy, and how many of those
-    /// have a zero gradient.
+    /// Non-transparent voxels shearwarp stores per axis copy.
     pub sw_visible: usize,
+    /// Of those, the voxels with a zero gradient (flat voxels).
     pub sw_flat: usize,
     /// How shearwarp's frames took the flat voxels.
     pub flat_voxels: FlatVoxels,

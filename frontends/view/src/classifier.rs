@@ -6,9 +6,13 @@
 //! depends on the table, so this module classifies once (normals and quantised scalars)
 //! and afterwards only rewrites the opacity byte and run-length encodes the three axis
 //! copies again with the core's `rle` functions. The result is the same encoding
-//! `scene::encode` builds, bit for bit (checked by the tests below).
+//! `scene::encode` builds, bit for bit (checked by the tests below), and takes flat
+//! voxels the way the CLI does by default (`FlatVoxels::for_volume`, with the tables
+//! of them that `Encoded::build_flat_rows` makes).
 
 use shearwarp_core::classify::{self, Grid, OpacityTf, Scalars, Voxel};
+use shearwarp_core::composite::FlatVoxels;
+use shearwarp_core::normal::ZERO_GRADIENT;
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::source::RleVolume;
 use shearwarp_core::Error;
@@ -90,29 +94,38 @@ impl Classifier {
         };
         // The file frontend's encoder: it reads the volume in storage order.
         let threshold = (class.min_opacity * 255.0).floor() as u8;
-        let visible = dense
+        let (visible, flat) = dense
             .iter()
             .filter(|v| rle::is_visible(v, threshold))
-            .count();
+            .fold((0, 0), |(n, f), v| {
+                (n + 1, f + (v.normal == ZERO_GRADIENT) as u64)
+            });
+        let flat_voxels = FlatVoxels::for_volume(flat, visible);
         let axes = axes
             .iter()
             .map(|&a| {
                 let (runs, voxels, scans) =
-                    scene::encode_axis(&dense, &self.grid, a, threshold, visible)?;
-                Ok((
-                    a,
-                    AxisRle {
-                        runs,
-                        voxels,
-                        scans,
-                    },
-                ))
+                    scene::encode_axis(&dense, &self.grid, a, threshold, visible as usize)?;
+                let mut rle = AxisRle {
+                    runs,
+                    voxels,
+                    scans,
+                    flat: Vec::new(),
+                };
+                if flat_voxels == FlatVoxels::Excluded {
+                    let copy = rle.axis(&self.grid, a)?;
+                    let mut table = vec![0; copy.flat_rows_len()];
+                    copy.fill_flat_rows(&mut table)?;
+                    rle.flat = table;
+                }
+                Ok((a, rle))
             })
             .collect::<Result<Vec<_>, Error>>()?;
         Ok(Encoding {
             class: class.clone(),
             dense,
             axes,
+            flat_voxels,
             ms: t.elapsed().as_secs_f64() * 1e3,
         })
     }
@@ -135,11 +148,20 @@ fn relabel<T: Copy + Into<usize>>(base: &[Voxel], raw: &[T], table: &[u8]) -> Ve
         .collect()
 }
 
-/// One run-length-encoded axis copy.
+/// One run-length-encoded axis copy, with its table of flat voxels when its
+/// classification excludes them (empty otherwise).
 pub struct AxisRle {
     runs: Vec<u8>,
     voxels: Vec<Voxel>,
     scans: Vec<ScanIndex>,
+    flat: Vec<u64>,
+}
+
+impl AxisRle {
+    /// The copy as the core reads it, without its table of flat voxels.
+    fn axis<'a>(&'a self, grid: &Grid, a: Axis) -> Result<RleAxis<'a>, Error> {
+        RleAxis::new(grid, a, &self.runs, &self.voxels, &self.scans)
+    }
 }
 
 /// Freshly encoded axis copies and the relabelled voxels they came from.
@@ -150,6 +172,8 @@ pub struct Encoding {
     pub dense: Arc<Vec<Voxel>>,
     /// The copies.
     pub axes: Vec<(Axis, AxisRle)>,
+    /// How frames take flat voxels under `class` ([`FlatVoxels::for_volume`]).
+    pub flat_voxels: FlatVoxels,
     /// Milliseconds it took.
     pub ms: f64,
 }
@@ -167,6 +191,7 @@ pub struct LevelRle {
     pub range: (u16, u16),
     axes: [Option<(Classification, AxisRle)>; 3],
     dense: Option<(Classification, Arc<Vec<Voxel>>)>,
+    flat_voxels: FlatVoxels,
 }
 
 fn same(a: &Classification, b: &Classification) -> bool {
@@ -181,6 +206,7 @@ impl LevelRle {
             range,
             axes: [None, None, None],
             dense: None,
+            flat_voxels: FlatVoxels::Blended,
         }
     }
 
@@ -209,6 +235,14 @@ impl LevelRle {
             self.axes[a as usize] = Some((enc.class.clone(), rle));
         }
         self.dense = Some((enc.class, enc.dense));
+        self.flat_voxels = enc.flat_voxels;
+    }
+
+    /// How frames take flat voxels under the latest classification. A stale copy may
+    /// lack the tables this asks for, or have some it does not: either way the core
+    /// renders it right (without a table it finds the flat voxels in the runs).
+    pub fn flat_voxels(&self) -> FlatVoxels {
+        self.flat_voxels
     }
 
     /// Builds what [`LevelRle::missing`] names, on this thread; returns the milliseconds
@@ -235,7 +269,12 @@ impl LevelRle {
             let (_, r) = self.axes[a as usize].as_ref().ok_or(Error::Source {
                 reason: "an axis copy has not been encoded yet",
             })?;
-            RleAxis::new(&self.grid, a, &r.runs, &r.voxels, &r.scans)
+            let copy = r.axis(&self.grid, a)?;
+            if r.flat.is_empty() {
+                Ok(copy)
+            } else {
+                copy.with_flat_rows(&r.flat)
+            }
         };
         RleVolume::new(self.grid, [axis(Axis::X)?, axis(Axis::Y)?, axis(Axis::Z)?])
     }
@@ -271,7 +310,12 @@ mod tests {
     fn equals_scene_encode_bit_for_bit() {
         let u8v = lumpy(|n| Voxels::U8((0..n).map(|i| value(i).min(255) as u8).collect()));
         let u16v = lumpy(|n| Voxels::U16((0..n).map(|i| (value(i) * 13 + 100) as u16).collect()));
-        for raw in [u8v, u16v] {
+        // Plateaus: a ball of one value on a zero background, both flat inside, so that
+        // under a constant opacity flat voxels are common enough to be excluded.
+        let plateaus =
+            lumpy(|n| Voxels::U8((0..n).map(|i| (value(i) > 120) as u8 * 200).collect()));
+        let mut excluded = 0;
+        for raw in [u8v, u16v, plateaus] {
             let range = crate::preset::data_range(&raw);
             let raw = Arc::new(raw);
             let c = Classifier::new(Arc::clone(&raw)).unwrap();
@@ -280,6 +324,7 @@ mod tests {
                 vec![(0.0, 0.0), (60.0, 0.0), (150.0, 0.5), (255.0, 0.9)],
                 vec![(20.0, 0.0), (3000.0, 1.0)],
                 vec![(0.0, 0.3)],
+                vec![(0.0, 0.6)],
             ]
             .into_iter()
             .enumerate()
@@ -287,11 +332,19 @@ mod tests {
                 let class = Classification {
                     opacity,
                     gradient: None,
-                    min_opacity: [0.02, 0.0, 0.5][k],
+                    min_opacity: [0.02, 0.0, 0.5, 0.0][k],
                 };
                 let mine = c.encode(&class).unwrap();
-                let theirs = scene::encode(&raw, &class).unwrap();
+                let mut theirs = scene::encode(&raw, &class).unwrap();
                 assert_eq!(mine.range, theirs.range);
+                // The CLI's default way with flat voxels, and its tables.
+                let way = theirs.auto_flat_voxels();
+                assert_eq!(mine.flat_voxels(), way);
+                if way == FlatVoxels::Excluded {
+                    theirs.build_flat_rows().unwrap();
+                    excluded += 1;
+                }
+                comp.set_flat_voxels(way);
                 let axes: Vec<&AxisRle> =
                     mine.axes.iter().map(|a| &a.as_ref().unwrap().1).collect();
                 assert_eq!(axes[2].voxels.len(), theirs.visible_voxels());
@@ -331,6 +384,7 @@ mod tests {
                 }
             }
         }
+        assert!(excluded > 0, "no classification excluded flat voxels");
     }
 
     #[test]

@@ -299,6 +299,7 @@ impl Engine {
             ..ImageMap::identity(&self.low.grid)
         };
         let src = self.low.volume()?;
+        self.comp.set_flat_voxels(self.low.flat_voxels());
         let (pixels, shadows, note) = draw(
             &mut self.comp,
             &self.scene,
@@ -389,6 +390,7 @@ impl Engine {
             ..ImageMap::identity(&full.grid)
         };
         let src = full.volume()?;
+        self.comp.set_flat_voxels(full.flat_voxels());
         let (latest, generation) = (&*self.latest, job.generation);
         let (pixels, shadows, note) = draw(
             &mut self.comp,

@@ -115,6 +115,12 @@ impl Compositor {
         self.renderer.threads()
     }
 
+    /// Takes flat voxels into samples' colours the way `f` says (the level's,
+    /// [`crate::classifier::LevelRle::flat_voxels`]).
+    pub fn set_flat_voxels(&mut self, f: shearwarp_core::composite::FlatVoxels) {
+        self.renderer.set_flat_voxels(f);
+    }
+
     /// Renders perspective views with a `fov` (degrees) field of view, or parallel
     /// projection with `None` (the file frontend's `--projection perspective --fov`).
     pub fn set_perspective(&mut self, fov: Option<f64>) {
