@@ -107,6 +107,14 @@ pub fn encode_threads(
     })
 }
 
+/// The table of `copy`'s flat voxels ([`RleAxis::fill_flat_rows`]), which
+/// [`RleAxis::with_flat_rows`] lends the compositor.
+pub fn flat_rows(copy: &RleAxis<'_>) -> Result<Vec<u64>, Error> {
+    let mut table = vec![0; copy.flat_rows_len()];
+    copy.fill_flat_rows(&mut table)?;
+    Ok(table)
+}
+
 /// The run-length copy of `dense` along `axis` as owned arrays (the route of a caller
 /// that keeps a dense classified copy anyway, as the viewer does to re-classify
 /// quickly), for a volume with `visible` voxels above `threshold`
@@ -357,9 +365,7 @@ impl Encoded {
         let vol = self.volume()?;
         let mut tables: [Vec<u64>; 3] = Default::default();
         for (a, table) in Axis::ALL.into_iter().zip(&mut tables) {
-            let copy = vol.axis(a);
-            *table = vec![0; copy.flat_rows_len()];
-            copy.fill_flat_rows(table)?;
+            *table = flat_rows(vol.axis(a))?;
         }
         self.flat = tables;
         Ok(())

@@ -113,10 +113,7 @@ impl Classifier {
                     flat: Vec::new(),
                 };
                 if flat_voxels == FlatVoxels::Excluded {
-                    let copy = rle.axis(&self.grid, a)?;
-                    let mut table = vec![0; copy.flat_rows_len()];
-                    copy.fill_flat_rows(&mut table)?;
-                    rle.flat = table;
+                    rle.flat = scene::flat_rows(&rle.axis(&self.grid, a)?)?;
                 }
                 Ok((a, rle))
             })
