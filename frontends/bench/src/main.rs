@@ -13,9 +13,9 @@ mod synth;
 mod volpack;
 
 use bench::{Options, SceneResult};
-use clap::{Parser, ValueEnum};
-use shearwarp_core::composite::FlatVoxels;
+use clap::Parser;
 use shearwarp_file::isa::Isa;
+use shearwarp_file::scene::FlatVoxelsArg;
 use std::error::Error;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -108,14 +108,6 @@ struct Cli {
     /// profile-guided build (`frontends/bench/pgo.sh`).
     #[arg(long)]
     train: bool,
-}
-
-/// `--flat-voxels`.
-#[derive(Clone, Copy, ValueEnum)]
-enum FlatVoxelsArg {
-    Auto,
-    Blended,
-    Excluded,
 }
 
 /// What a profile-guided build of this binary was trained on, set at compile time by
@@ -397,11 +389,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         baseline: !cli.no_baseline,
         supersample: (cli.supersample > 1).then_some(cli.supersample),
         supersample_psnr: !cli.no_psnr,
-        flat_voxels: match cli.flat_voxels {
-            FlatVoxelsArg::Auto => None,
-            FlatVoxelsArg::Blended => Some(FlatVoxels::Blended),
-            FlatVoxelsArg::Excluded => Some(FlatVoxels::Excluded),
-        },
+        flat_voxels: cli.flat_voxels.fixed(),
     };
     if cli.train {
         let opts = Options {
@@ -649,6 +637,7 @@ fn main() -> ExitCode {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shearwarp_core::composite::FlatVoxels;
 
     #[test]
     fn the_size_table_gives_each_scenes_flat_share_and_way() {

@@ -10,7 +10,7 @@ use shearwarp_file::anim;
 use shearwarp_file::isa::Isa;
 use shearwarp_file::presets;
 use shearwarp_file::renderer::{FrameTimes, Renderer};
-use shearwarp_file::scene::{self, Classification, Encoded, Look};
+use shearwarp_file::scene::{self, Classification, Encoded, FlatVoxelsArg, Look};
 use shearwarp_file::stats::median;
 use shearwarp_file::tffile::{Resolved, TfFileError, TfSpec};
 use shearwarp_file::tfspec;
@@ -115,25 +115,6 @@ enum Command {
         #[command(flatten)]
         opts: RenderOpts,
     },
-}
-
-#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
-enum FlatVoxelsArg {
-    Auto,
-    Blended,
-    Excluded,
-}
-
-impl FlatVoxelsArg {
-    /// The way for `enc`: as asked, or as its share of flat voxels says
-    /// ([`Encoded::auto_flat_voxels`]).
-    fn resolve(self, enc: &Encoded) -> FlatVoxels {
-        match self {
-            FlatVoxelsArg::Auto => enc.auto_flat_voxels(),
-            FlatVoxelsArg::Blended => FlatVoxels::Blended,
-            FlatVoxelsArg::Excluded => FlatVoxels::Excluded,
-        }
-    }
 }
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]

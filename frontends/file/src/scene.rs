@@ -23,6 +23,36 @@ pub struct Classification {
     pub min_opacity: f64,
 }
 
+/// How frames take voxels with a zero gradient (`--flat-voxels` of the CLI and the
+/// bench): a fixed [`FlatVoxels`], or `Auto`, as each volume's share of them says
+/// ([`Encoded::auto_flat_voxels`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FlatVoxelsArg {
+    // The variants' doc comments are the CLIs' help text, so they name no Rust items.
+    /// Excluded when at least one in 16 visible voxels is flat, blended otherwise.
+    Auto,
+    /// Blended into samples' colours like the other voxels.
+    Blended,
+    /// Left out of the colour of samples that mix them with voxels that have a direction.
+    Excluded,
+}
+
+impl FlatVoxelsArg {
+    /// The way asked for, `None` for `Auto`.
+    pub fn fixed(self) -> Option<FlatVoxels> {
+        match self {
+            FlatVoxelsArg::Auto => None,
+            FlatVoxelsArg::Blended => Some(FlatVoxels::Blended),
+            FlatVoxelsArg::Excluded => Some(FlatVoxels::Excluded),
+        }
+    }
+
+    /// The way for `enc`: as asked, or as its share of flat voxels says.
+    pub fn resolve(self, enc: &Encoded) -> FlatVoxels {
+        self.fixed().unwrap_or_else(|| enc.auto_flat_voxels())
+    }
+}
+
 /// The classified volume, run-length encoded along all three axes.
 pub struct Encoded {
     /// Geometry.
