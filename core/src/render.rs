@@ -1047,7 +1047,15 @@ mod tests {
         let grid = Grid::new([24, 22, 26], [1.0; 3]).unwrap();
         let [nx, ny, nz] = grid.dims;
         let c = [11.5, 10.5, 12.5];
-        let ball = |plateau: bool| -> Vec<Voxel> {
+        // The core: flat (a plateau), or every voxel with its own direction, or all with
+        // one direction (records that repeat, as a plateau's do, but none flat).
+        #[derive(Clone, Copy, PartialEq)]
+        enum Core {
+            Flat,
+            Directed,
+            OneDirection,
+        }
+        let ball = |core: Core| -> Vec<Voxel> {
             let mut v = Vec::with_capacity(nx * ny * nz);
             for z in 0..nz {
                 for y in 0..ny {
@@ -1059,10 +1067,10 @@ mod tests {
                             r if r < 6.0 => Voxel {
                                 opacity: 40,
                                 scalar: 200,
-                                normal: if plateau {
-                                    normal::ZERO_GRADIENT
-                                } else {
-                                    normal::encode(g[0], g[1], g[2] + 1)
+                                normal: match core {
+                                    Core::Flat => normal::ZERO_GRADIENT,
+                                    Core::Directed => normal::encode(g[0], g[1], g[2] + 1),
+                                    Core::OneDirection => normal::encode(20, -30, 64),
                                 },
                             },
                             r if r < 9.0 => Voxel {
@@ -1101,7 +1109,7 @@ mod tests {
             .unwrap();
             render48(&mut vol, &frame, &mut shade, shadows.then_some(&mut shade0))
         };
-        let (plateau, directed) = (ball(true), ball(false));
+        let plateau = ball(Core::Flat);
         for (shadows, s) in [(false, 1), (false, 2), (true, 1)] {
             let blended = render(&plateau, FlatVoxels::Blended, shadows, s);
             let excluded = render(&plateau, FlatVoxels::Excluded, shadows, s);
@@ -1115,11 +1123,16 @@ mod tests {
                 blended != excluded,
                 "the rule changed nothing: shadows {shadows}, {s}x"
             );
-            assert_eq!(
-                render(&directed, FlatVoxels::Blended, shadows, s),
-                render(&directed, FlatVoxels::Excluded, shadows, s),
-                "no flat voxel: shadows {shadows}, {s}x"
-            );
+            // Excluded, runs of equal records are shaded once (`shade_repeats`);
+            // blended, voxel by voxel.
+            for core in [Core::Directed, Core::OneDirection] {
+                let v = ball(core);
+                assert_eq!(
+                    render(&v, FlatVoxels::Blended, shadows, s),
+                    render(&v, FlatVoxels::Excluded, shadows, s),
+                    "no flat voxel: shadows {shadows}, {s}x"
+                );
+            }
         }
     }
 
