@@ -9,7 +9,7 @@ use shearwarp_core::source::SliceSource;
 use shearwarp_core::view::Camera;
 use shearwarp_file::isa::Isa;
 use shearwarp_file::renderer::{FrameTimes, Renderer};
-use shearwarp_file::scene::{self, Encoded, Look};
+use shearwarp_file::scene::{self, Encoded, FlatVoxelsArg, Look};
 use shearwarp_tests::metrics;
 use shearwarp_tests::reference::{self, RefMode, RefView};
 use std::error::Error;
@@ -48,9 +48,9 @@ pub struct Options {
     /// Compare the supersampled runs' images and the plain ones at the same sizes
     /// against the reference even where `psnr` is off (the scaling series).
     pub supersample_psnr: bool,
-    /// How shearwarp's samples take flat voxels into their colour; `None` leaves it to
-    /// each volume's share of them ([`Encoded::auto_flat_voxels`]).
-    pub flat_voxels: Option<FlatVoxels>,
+    /// How shearwarp's samples take flat voxels into their colour: fixed, or `Auto`,
+    /// as each volume's share of them says ([`FlatVoxelsArg::resolve`]).
+    pub flat_voxels: FlatVoxelsArg,
 }
 
 /// Median of a set of timings, ms.
@@ -342,12 +342,12 @@ fn sw_preprocess(
     vol: &Loaded,
     scene: &Scene,
     runs: usize,
-    flat: Option<FlatVoxels>,
+    flat: FlatVoxelsArg,
 ) -> Result<(Encoded, FlatVoxels, f64), Box<dyn Error>> {
     let class = scene.look.classification();
     let encode = || -> Result<(Encoded, FlatVoxels), Box<dyn Error>> {
         let mut enc = scene::encode_threads(&vol.raw, &class, 1)?;
-        let way = flat.unwrap_or_else(|| enc.auto_flat_voxels());
+        let way = flat.resolve(&enc);
         if way == FlatVoxels::Excluded {
             enc.build_flat_rows()?;
         }

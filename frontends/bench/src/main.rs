@@ -389,7 +389,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         baseline: !cli.no_baseline,
         supersample: (cli.supersample > 1).then_some(cli.supersample),
         supersample_psnr: !cli.no_psnr,
-        flat_voxels: cli.flat_voxels.fixed(),
+        flat_voxels: cli.flat_voxels,
     };
     if cli.train {
         let opts = Options {

@@ -38,18 +38,13 @@ pub enum FlatVoxelsArg {
 }
 
 impl FlatVoxelsArg {
-    /// The way asked for, `None` for `Auto`.
-    pub fn fixed(self) -> Option<FlatVoxels> {
-        match self {
-            FlatVoxelsArg::Auto => None,
-            FlatVoxelsArg::Blended => Some(FlatVoxels::Blended),
-            FlatVoxelsArg::Excluded => Some(FlatVoxels::Excluded),
-        }
-    }
-
     /// The way for `enc`: as asked, or as its share of flat voxels says.
     pub fn resolve(self, enc: &Encoded) -> FlatVoxels {
-        self.fixed().unwrap_or_else(|| enc.auto_flat_voxels())
+        match self {
+            FlatVoxelsArg::Auto => enc.auto_flat_voxels(),
+            FlatVoxelsArg::Blended => FlatVoxels::Blended,
+            FlatVoxelsArg::Excluded => FlatVoxels::Excluded,
+        }
     }
 }
 
