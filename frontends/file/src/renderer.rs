@@ -30,13 +30,14 @@ type Start<'a> = (
 );
 
 /// What a compositing thread has to itself: its row buffer, its handle on the source,
-/// its busy time ([`FrameTimes::busy`]) and, after the first thread, its shading table
+/// its busy time ([`FrameTimes::busy`]) and, after the first thread, the pool workers'
+/// shading tables, of which it takes the one of the worker it runs on
 /// (`Renderer::own_shade`).
 type Own<'a, S> = (
     &'a mut Vec<Rgba>,
     S,
     &'a mut Duration,
-    Option<&'a Mutex<ShadeTable>>,
+    Option<&'a [Mutex<ShadeTable>]>,
 );
 
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
@@ -193,8 +194,8 @@ pub struct Renderer {
     shadow_alpha: Vec<u16>,
     shadow_rows: Vec<u16>,
     shade0: Box<ShadeTable>,
-    /// The shading table of each compositing thread after the first, which fills it
-    /// itself at the start of its first band (the same entries as `shade`). The calling
+    /// The shading table of each pool worker, by its index in the pool, which the worker
+    /// fills itself (the same entries as `shade`) and composites with. The calling
     /// thread fills `shade` every frame; had the other threads read it, the fill would
     /// first take every line they held back from their cores: on brainsmall (two
     /// threads, medians of 200 frames) it took 17.7–21.0 µs against 9.5 on one thread,
@@ -205,12 +206,18 @@ pub struct Renderer {
     /// brainsmall in eight of ten runs (0.74 and 0.79 in the other two), 0.98–1.01× on
     /// the head in four.
     ///
-    /// The job that wakes the workers at the start of a frame fills these tables too,
-    /// for the frame's lights and rotation, so that a worker already awake (frames back
-    /// to back, with nothing between them) fills its table during the calling
-    /// thread's setup and starts its band at once; a worker that was asleep fills it
-    /// when it wakes, as before.
-    own_shade: Vec<Arc<Mutex<ShadeTable>>>,
+    /// The job that wakes the workers at the start of a frame, one run on each worker,
+    /// fills these tables too, for the frame's lights and rotation, so that a worker
+    /// already awake (frames back to back, with nothing between them) fills its table
+    /// during the calling thread's setup and starts its band at once; a worker that was
+    /// asleep fills it when it wakes. A band fills its worker's table again if it was
+    /// not filled for the frame (a no-op when it was).
+    ///
+    /// The tables go by worker, not by band, because the pool hands a frame's bands to
+    /// whichever worker is free: with more than one worker, a table filled by the job of
+    /// one and read by the band of another would sit in the wrong core's cache, the
+    /// cost the copies are there to avoid.
+    own_shade: Arc<[Mutex<ShadeTable>]>,
     supersample: usize,
     flat_voxels: FlatVoxels,
     fov: Option<f64>,
@@ -262,7 +269,7 @@ impl Renderer {
             shadow_rows: vec![0; shadow::row_buffer_len(m)],
             shade0: Box::new(ShadeTable::UNSHADED),
             own_shade: (1..threads)
-                .map(|_| Arc::new(Mutex::new(ShadeTable::UNSHADED)))
+                .map(|_| Mutex::new(ShadeTable::UNSHADED))
                 .collect(),
             supersample: 1,
             flat_voxels: FlatVoxels::Blended,
@@ -387,24 +394,21 @@ impl Renderer {
         // awake worker then fills it during the setup instead of at the start of its
         // band (brainsmall at 256², frames back to back: 1.78–1.80× → 1.80–1.84× over
         // one thread in six alternating pairs of runs).
-        if let Some(pool) = &self.pool {
-            match (&look.lighting, look.shadows) {
-                (_, true) => {}
-                (Some(l), false) => {
-                    let rotation = view::rotation(camera.rotate_x, camera.rotate_y);
-                    for table in &self.own_shade {
-                        let (table, l, isa) = (Arc::clone(table), l.clone(), self.isa);
-                        pool.spawn(move || {
-                            // A failed fill (invalid lights) is the band's to report:
-                            // it fills again, and returns the error.
-                            if let Ok(mut t) = table.lock() {
-                                let _ = isa::fill_shade(isa, &mut t, &l, &rotation);
-                            }
-                        });
-                    }
+        if let Some(pool) = self.pool.as_ref().filter(|_| !look.shadows) {
+            let fill = look.lighting.clone().map(|l| {
+                let rotation = view::rotation(camera.rotate_x, camera.rotate_y);
+                (Arc::clone(&self.own_shade), l, rotation, self.isa)
+            });
+            pool.spawn_broadcast(move |worker| {
+                let Some((tables, l, rotation, isa)) = &fill else {
+                    return;
+                };
+                // A failed fill (invalid lights) is the band's to report: it fills
+                // again, and returns the error.
+                if let Some(Ok(mut t)) = tables.get(worker.index()).map(|t| t.lock()) {
+                    let _ = isa::fill_shade(*isa, &mut t, l, rotation);
                 }
-                (None, false) => pool.spawn(|| {}),
-            }
+            });
         }
         let settings = Settings {
             mode: look.mode,
@@ -527,6 +531,9 @@ impl Renderer {
             |(t, (rows, mut src, busy, shade), start): (usize, Own<'_, S>, _)| -> Result<(), Error> {
                 let began = Instant::now();
                 let (mut held, own);
+                // The table of the worker this band runs on (none on the calling thread,
+                // which is not one of the pool's).
+                let shade = shade.and_then(|s| s.get(pool.current_thread_index()?));
                 let tables = match (shade, lights) {
                     (Some(sh), Some(l)) => {
                         held = sh.lock().map_err(|_| Error::Source { reason: PANICKED })?;
@@ -592,7 +599,7 @@ impl Renderer {
                 Ok(())
             };
         self.times.busy.resize(threads, Duration::ZERO);
-        let shades = std::iter::once(None).chain(self.own_shade.iter().map(|s| Some(&**s)));
+        let shades = std::iter::once(None).chain(std::iter::repeat(Some(&*self.own_shade)));
         let own = self
             .rows
             .iter_mut()
@@ -832,7 +839,7 @@ mod tests {
             .collect();
         // The lights change the image: a table left as it was would show.
         assert!(want[1] != want[2] && want[2] != want[3] && want[5] != want[6]);
-        for threads in [2, 3] {
+        for threads in [2, 3, 4] {
             let mut r = Renderer::with_threads(&enc.grid, threads);
             for (i, (rx, ry, look)) in frames.iter().enumerate() {
                 let mut src = enc.volume().unwrap();
