@@ -384,13 +384,14 @@ impl Renderer {
         let start = Instant::now();
         self.times.warp = Duration::ZERO;
         // A parked worker takes 0.06–0.17 ms to start a job here, which the calling
-        // thread would spend compositing alone. Waking it now, with an empty job, lets
+        // thread would spend compositing alone. Waking every worker now, with a job run
+        // once on each (a broadcast), lets
         // that overlap the frame's serial setup (factorization, shading table). Measured
         // inside the renderer (means of 200 two-thread frames, two alternating runs at
         // 256²), the worker then started 0.04 ms after the bands were posted instead of
         // 0.06–0.12 ms, and the compositing phase took 0.87–0.92 ms instead of
         // 0.95–0.98 ms on brainsmall, 3.86–4.11 ms instead of 4.45–4.61 ms on the head.
-        // With lights the job also fills the worker's shading table (`own_shade`): an
+        // With lights the job also fills that worker's shading table (`own_shade`): an
         // awake worker then fills it during the setup instead of at the start of its
         // band (brainsmall at 256², frames back to back: 1.78–1.80× → 1.80–1.84× over
         // one thread in six alternating pairs of runs).
