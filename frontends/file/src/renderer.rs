@@ -29,16 +29,10 @@ type Start<'a> = (
     &'a mut [[u32; 2]],
 );
 
-/// What a compositing thread has to itself: its row buffer, its handle on the source,
-/// its busy time ([`FrameTimes::busy`]) and, after the first thread, the pool workers'
-/// shading tables, of which it takes the one of the worker it runs on
-/// (`Renderer::own_shade`).
-type Own<'a, S> = (
-    &'a mut Vec<Rgba>,
-    S,
-    &'a mut Duration,
-    Option<&'a [Mutex<ShadeTable>]>,
-);
+/// What a compositing thread has to itself: its row buffer, its handle on the source
+/// and its busy time ([`FrameTimes::busy`]). (A thread on a pool worker also takes that
+/// worker's shading table, `Renderer::own_shade`.)
+type Own<'a, S> = (&'a mut Vec<Rgba>, S, &'a mut Duration);
 
 /// Waits, without sleeping and for at most [`SPIN_LIMIT`], until `running` is zero.
 ///
@@ -385,8 +379,8 @@ impl Renderer {
         self.times.warp = Duration::ZERO;
         // A parked worker takes 0.06–0.17 ms to start a job here, which the calling
         // thread would spend compositing alone. Waking every worker now, with a job run
-        // once on each (a broadcast), lets
-        // that overlap the frame's serial setup (factorization, shading table). Measured
+        // once on each (a broadcast), lets that overlap the frame's serial setup
+        // (factorization, shading table). Measured
         // inside the renderer (means of 200 two-thread frames, two alternating runs at
         // 256²), the worker then started 0.04 ms after the bands were posted instead of
         // 0.06–0.12 ms, and the compositing phase took 0.87–0.92 ms instead of
@@ -525,16 +519,17 @@ impl Renderer {
         // Lights of the threads' own shading tables; without them every thread reads the
         // unshaded table `tables` holds.
         let lights = look.lighting.as_ref();
+        let own_shade = &*self.own_shade;
         let rotation = frame.view.rotation;
         // One worker per row buffer, each with its own handle on the source, its busy
         // time, its shading table and its starting band.
         let work =
-            |(t, (rows, mut src, busy, shade), start): (usize, Own<'_, S>, _)| -> Result<(), Error> {
+            |(t, (rows, mut src, busy), start): (usize, Own<'_, S>, _)| -> Result<(), Error> {
                 let began = Instant::now();
                 let (mut held, own);
                 // The table of the worker this band runs on (none on the calling thread,
                 // which is not one of the pool's).
-                let shade = shade.and_then(|s| s.get(pool.current_thread_index()?));
+                let shade = pool.current_thread_index().and_then(|i| own_shade.get(i));
                 let tables = match (shade, lights) {
                     (Some(sh), Some(l)) => {
                         held = sh.lock().map_err(|_| Error::Source { reason: PANICKED })?;
@@ -600,14 +595,9 @@ impl Renderer {
                 Ok(())
             };
         self.times.busy.resize(threads, Duration::ZERO);
-        let shades = std::iter::once(None).chain(std::iter::repeat(Some(&*self.own_shade)));
-        let own = self
-            .rows
-            .iter_mut()
-            .zip(self.times.busy.iter_mut())
-            .zip(shades);
+        let own = self.rows.iter_mut().zip(self.times.busy.iter_mut());
         let each = (0..threads)
-            .zip(own.map(|((rows, busy), shade)| (rows, source.clone(), busy, shade)))
+            .zip(own.map(|(rows, busy)| (rows, source.clone(), busy)))
             .zip(starts)
             .map(|((t, r), s)| (t, r, s));
         on_threads(pool, each, work, PANICKED)?;
