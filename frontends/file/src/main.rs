@@ -1199,13 +1199,30 @@ fn time_turntable(
     Ok(times)
 }
 
-/// Bad input (unreadable or malformed files, unsupported content, bad option values):
-/// exit code 2, like clap's usage errors.
+/// Bad input (unreadable or malformed files, unsupported content, bad option values,
+/// including those only the core's checks catch, such as `--supersample 9`): exit code
+/// 2, like clap's usage errors. Failures to write, and the core's own faults (a buffer
+/// it was given too small, a thread that panicked), exit with 1.
 fn is_bad_input(e: &(dyn Error + 'static)) -> bool {
+    use shearwarp_core::Error as Core;
+    let core_input = |c: &Core| {
+        matches!(
+            c,
+            Core::BadDimensions { .. }
+                | Core::BadSpacing
+                | Core::BadTransferFunction { .. }
+                | Core::MalformedRle { .. }
+                | Core::BadParameter { .. }
+                | Core::Format { .. }
+        )
+    };
     e.is::<volume::LoadError>()
         || e.is::<TfFileError>()
         || e.is::<tfspec::TfError>()
         || e.is::<Usage>()
+        || e.downcast_ref::<swvfile::SwvError>()
+            .is_some_and(swvfile::SwvError::is_bad_input)
+        || e.downcast_ref::<Core>().is_some_and(core_input)
 }
 
 fn main() -> ExitCode {

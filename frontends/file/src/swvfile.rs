@@ -53,17 +53,29 @@ impl swv::Write for FileWriter {
 /// Failure to read or write a `.swv` file.
 #[derive(Debug)]
 pub enum SwvError {
-    /// The file could not be opened or created.
-    Io(std::path::PathBuf, std::io::Error),
-    /// The core rejected the contents.
-    Core(std::path::PathBuf, Error),
+    /// The file could not be opened or measured for reading.
+    Open(std::path::PathBuf, std::io::Error),
+    /// The file's contents are not a valid volume: truncated, corrupt, or inconsistent.
+    Invalid(std::path::PathBuf, Error),
+    /// The output file could not be created or written.
+    Write(std::path::PathBuf, std::io::Error),
+    /// The core refused to write the volume.
+    Encode(std::path::PathBuf, Error),
+}
+
+impl SwvError {
+    /// Whether the file read was at fault (the CLI's bad input, exit code 2), rather
+    /// than the writing of one.
+    pub fn is_bad_input(&self) -> bool {
+        matches!(self, SwvError::Open(..) | SwvError::Invalid(..))
+    }
 }
 
 impl std::fmt::Display for SwvError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            SwvError::Io(p, e) => write!(f, "{}: {e}", p.display()),
-            SwvError::Core(p, e) => write!(f, "{}: {e}", p.display()),
+            SwvError::Open(p, e) | SwvError::Write(p, e) => write!(f, "{}: {e}", p.display()),
+            SwvError::Invalid(p, e) | SwvError::Encode(p, e) => write!(f, "{}: {e}", p.display()),
         }
     }
 }
@@ -72,12 +84,13 @@ impl std::error::Error for SwvError {}
 
 /// Writes `enc` with its default look as a `.swv` file.
 pub fn write_swv(enc: &Encoded, look: &swv::Look, path: &std::path::Path) -> Result<(), SwvError> {
-    let err = |e| SwvError::Core(path.to_path_buf(), e);
-    let file = std::fs::File::create(path).map_err(|e| SwvError::Io(path.to_path_buf(), e))?;
+    let err = |e| SwvError::Encode(path.to_path_buf(), e);
+    let io_err = |e| SwvError::Write(path.to_path_buf(), e);
+    let file = std::fs::File::create(path).map_err(io_err)?;
     let mut w = FileWriter(std::io::BufWriter::new(file));
     let vol = enc.volume().map_err(err)?;
     swv::write(&mut w, &vol, enc.range, enc.threshold, look).map_err(err)?;
-    std::io::Write::flush(&mut w.0).map_err(|e| SwvError::Io(path.to_path_buf(), e))
+    std::io::Write::flush(&mut w.0).map_err(io_err)
 }
 
 /// True if `path` starts with the `.swv` signature.
@@ -91,11 +104,10 @@ pub fn is_swv(path: &std::path::Path) -> bool {
 
 /// Reads a whole `.swv` file into memory (every slice checked), with its default look.
 pub fn read_swv(path: &std::path::Path) -> Result<(Encoded, swv::Look), SwvError> {
-    let err = |e| SwvError::Core(path.to_path_buf(), e);
-    let mut r = FileReader::open(path).map_err(|e| SwvError::Io(path.to_path_buf(), e))?;
-    let file_len = std::fs::metadata(path)
-        .map_err(|e| SwvError::Io(path.to_path_buf(), e))?
-        .len();
+    let err = |e| SwvError::Invalid(path.to_path_buf(), e);
+    let open_err = |e| SwvError::Open(path.to_path_buf(), e);
+    let mut r = FileReader::open(path).map_err(open_err)?;
+    let file_len = std::fs::metadata(path).map_err(open_err)?.len();
     let header = swv::read_header(&mut r).map_err(err)?;
     let grid = header.grid;
     let mut runs: [Vec<u8>; 3] = Default::default();

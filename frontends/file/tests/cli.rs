@@ -609,6 +609,41 @@ fn bad_inputs_exit_2_with_one_line() {
         ]),
         "x.gif: a GIF holds 8-bit colour only".into(),
     ));
+    // Option values only the core's checks refuse.
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--supersample", "9"]),
+        "supersampling factor must be 1..=4".into(),
+    ));
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--ert", "2"]),
+        "early-ray-termination threshold".into(),
+    ));
+    // A truncated `.swv` file, and one whose colour table was overwritten.
+    let swv = t.p("whole.swv");
+    let (code, _, err) = shearwarp(&["encode", &head64(), "-o", &swv, "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let whole = std::fs::read(&swv).unwrap();
+    // Cut inside the slice table, and inside the slices (which the table points past).
+    for (name, len, want) in [
+        ("cut1.swv", 5000, "input ends early (truncated)"),
+        (
+            "cut2.swv",
+            whole.len() / 3,
+            "invalid .swv volume: slice counts exceed what the slice or the file can hold",
+        ),
+    ] {
+        let cut = t.p(name);
+        std::fs::write(&cut, &whole[..len]).unwrap();
+        cases.push((s(&["render", &cut, "-o", &o]), format!("{name}: {want}")));
+    }
+    let mut bad = whole.clone();
+    bad[200..260].fill(0xff);
+    let corrupt = t.p("corrupt.swv");
+    std::fs::write(&corrupt, &bad).unwrap();
+    cases.push((
+        s(&["render", &corrupt, "-o", &o]),
+        "corrupt.swv: invalid .swv volume".into(),
+    ));
     // Inconsistent DICOM slice sizes (Rows patched in one file of the shared series).
     if let Some(dir) = shared("dicom/mr_pd_brain_series") {
         let d = t.p("inconsistent");
@@ -638,5 +673,19 @@ fn bad_inputs_exit_2_with_one_line() {
             err.contains(want.as_str()),
             "{a:?}: want {want:?}, got {err}"
         );
+    }
+}
+
+/// Failing to write the output is not bad input: exit code 1, one line naming the file.
+#[test]
+fn an_unwritable_output_exits_1() {
+    let t = Tmp::new("unwritable");
+    let missing = t.p("no/such/dir");
+    for (cmd, name) in [("render", "x.png"), ("encode", "x.swv")] {
+        let out = format!("{missing}/{name}");
+        let (code, _, err) = shearwarp(&[cmd, &head64(), "-o", &out]);
+        assert_eq!(code, 1, "{cmd}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.starts_with("error: ") && err.contains(name), "{err}");
     }
 }
