@@ -100,6 +100,7 @@
 
 pub mod classify;
 pub mod composite;
+pub mod crop;
 pub mod depth;
 pub mod error;
 pub mod fixed;

@@ -35,6 +35,7 @@
 
 use crate::classify::{ColorTable, Grid, Voxel};
 use crate::composite::{Intermediate, Rgba};
+use crate::crop::Crop;
 use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
 use crate::shade::ShadeTable;
@@ -113,6 +114,9 @@ pub struct PostSettings<'a> {
     pub lighting: Option<&'a crate::shade::Lighting>,
     /// Early-ray-termination opacity.
     pub ert_threshold: f64,
+    /// Samples outside this box's cells are left out ([`crate::crop`]); `None` keeps
+    /// the whole volume.
+    pub crop: Option<Crop>,
 }
 
 /// Caller buffers for [`render`].
@@ -334,6 +338,9 @@ pub struct PostFrame<'a> {
     ert: u32,
     /// The isovalue, Q8.
     iso_q8: u32,
+    /// The cells samples are taken in along the view's axes (i, j, k), in half voxels
+    /// ([`Crop::cells`]): the crop box's, or the whole volume's.
+    cells: [(i64, i64); 3],
 }
 
 /// Validates `settings`, factors the view and fills `tables` for one frame.
@@ -376,6 +383,12 @@ pub fn prepare<'a>(
     if settings.mode == PostMode::PreIntegrated {
         build_preintegration(settings.opacity, settings.color, view.step_ratio, preint)?;
     }
+    // The box, checked against this volume (it may have been made for another).
+    let (lo, hi) = match settings.crop {
+        Some(c) => (c.lo(), c.hi()),
+        None => ([0; 3], grid.dims.map(|n| n.saturating_sub(1))),
+    };
+    let cells = Crop::new(lo, hi, grid.dims)?.cells();
     let iso_q8 = match settings.mode {
         PostMode::Isosurface(v) => {
             if !(v.is_finite() && (0.0..=255.0).contains(&v)) {
@@ -398,6 +411,7 @@ pub fn prepare<'a>(
         visible,
         ert,
         iso_q8,
+        cells: view.permute(cells),
     })
 }
 
@@ -430,7 +444,12 @@ pub fn composite_band(
     let bstride_obj = [1, nb_obj[0], nb_obj[0] * nb_obj[1]];
     let bstride = view.permute(bstride_obj);
     let nk = view.dims[2];
-    let (ni, nj) = (view.dims[0] as i64, view.dims[1] as i64);
+    // Samples lie in the cells of the crop box (the whole volume without one), in Q15.
+    let half = ONE as i64 / 2;
+    let [(i_lo, i_hi), (j_lo, j_hi), (k_lo, k_hi)] = frame.cells;
+    let (i_lo, i_hi, j_lo, j_hi) = (i_lo * half, i_hi * half, j_lo * half, j_hi * half);
+    // A slice is inside when its cell's centre is: cells in half voxels, slices whole.
+    let slice_in = |k: usize| (k_lo..=k_hi).contains(&(2 * k as i64));
     let slabs = match frame.mode {
         PostMode::PostClassified => nk,
         _ => nk.saturating_sub(1),
@@ -442,6 +461,9 @@ pub fn composite_band(
         } else {
             view.slice_at(idx + 1)
         };
+        if !slice_in(kf) || !slice_in(kb) {
+            continue;
+        }
         let [fu, fv] = view.slice_offset(kf);
         let [bu, bv] = view.slice_offset(kb);
         let wf = fixed::bilinear_weights(fu.f, fv.f);
@@ -454,7 +476,7 @@ pub fn composite_band(
             }
             let jb = v as i64 - bv.n as i64 - 1;
             let vpos = (v as i64 - fv.n as i64) * ONE as i64 - fv.f as i64;
-            let row_in = vpos >= -(ONE as i64 / 2) && vpos <= (2 * nj - 1) * (ONE as i64 / 2);
+            let row_in = j_lo <= vpos && vpos <= j_hi;
             let bj = (((jt + 1).max(0) as usize) / BRICK).min(nb[1] - 1);
             let brow = bk * bstride[2] + bj * bstride[1];
             for bi in 0..nb[0] {
@@ -486,7 +508,7 @@ pub fn composite_band(
                     let il = u as i64 - fu.n as i64 - 1;
                     // Position u − n − f of the sample in the slice, in halves of Q15.
                     let pos = (u as i64 - fu.n as i64) * ONE as i64 - fu.f as i64;
-                    if pos < -(ONE as i64 / 2) || pos > (2 * ni - 1) * (ONE as i64 / 2) || !row_in {
+                    if pos < i_lo || pos > i_hi || !row_in {
                         u += 1;
                         continue;
                     }

@@ -17,6 +17,7 @@
 use libfuzzer_sys::fuzz_target;
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
 use shearwarp_core::composite::{Intermediate, Rgba};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::postclass::{self, PostMode, PostSettings, PostTables, PostWorkspace};
 use shearwarp_core::shade::{Light, Lighting, ShadeTable};
 use shearwarp_core::view::{self, Camera};
@@ -106,6 +107,10 @@ fuzz_target!(|data: &[u8]| {
         _ => PostMode::Isosurface(b.f64_or(|x| x as f64 + 0.5)),
     };
     let ert_threshold = b.f64_or(|x| x as f64 / 255.0);
+    // A crop box of any bounds, kept when this volume accepts it (the level below gets
+    // the same box, which may then lie outside it).
+    let (lo, hi) = ([b.u8(), b.u8(), b.u8()], [b.u8(), b.u8(), b.u8()]);
+    let crop = Crop::new(lo.map(usize::from), hi.map(usize::from), dims).ok();
     // The voxels: what is left of the input, repeated.
     let rest = if b.0.is_empty() { &[0u8][..] } else { b.0 };
     let n = grid.voxel_count();
@@ -132,6 +137,7 @@ fuzz_target!(|data: &[u8]| {
         color: &color,
         lighting: look.as_ref(),
         ert_threshold,
+        crop,
     };
     frame(&grid, scalars, gradient, &camera, &settings);
     // The level above, drawn with the same settings.
@@ -172,6 +178,11 @@ fn frame(
     let gt = gradient.then_some(&gradient_table);
     if classify::classify(grid, scalars, &table, gt, &mut voxels).is_err() {
         return;
+    }
+    if let Some(c) = &settings.crop {
+        // The classified path's crop, on the same records (a box of the level above
+        // may not fit this volume).
+        let _ = c.apply(grid, 0..grid.dims[2], &mut voxels);
     }
     let mut bricks = vec![(0u8, 0u8); postclass::brick_count(grid.dims)];
     if postclass::build_bricks(grid, &voxels, &mut bricks).is_err() {

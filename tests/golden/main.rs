@@ -90,6 +90,64 @@ fn threaded_rendering_is_bit_identical_to_single_threaded() {
     }
 }
 
+/// A crop box cuts the picture the reference's box cuts: each crop case is far nearer
+/// the cropped reference than the whole one (so the cut is seen, not lost in the
+/// tolerance), and a box around the whole volume changes no pixel of either path. On a
+/// level of detail the box keeps the level's voxels centred in it: a level-1 frame of
+/// a classified crop case is likewise far nearer the cropped reference than the level's
+/// uncropped frame is.
+#[test]
+fn crop_boxes_cut_the_volume_like_the_reference() {
+    let mut seen = 0;
+    for case in CASES.iter().filter(|c| c.crop.is_some()) {
+        let raw = cases::load(case.vol);
+        let ours = cases::render_ours(case, &raw);
+        let whole = cases::Case {
+            crop: None,
+            ..*case
+        };
+        let cropped_ref = metrics::psnr_rgb8(&ours, &cases::render_ref(case, &raw));
+        let whole_ref = metrics::psnr_rgb8(&ours, &cases::render_ref(&whole, &raw));
+        println!(
+            "{}: {cropped_ref:.2} dB against the cropped reference, {whole_ref:.2} dB \
+             against the whole one",
+            case.name
+        );
+        assert!(
+            cropped_ref > whole_ref + 8.0,
+            "{}: {cropped_ref:.2} dB cropped against {whole_ref:.2} dB whole",
+            case.name
+        );
+        let d = raw.dims;
+        let every = cases::Case {
+            crop: Some(([0; 3], [d[0] - 1, d[1] - 1, d[2] - 1])),
+            ..*case
+        };
+        assert!(
+            cases::render_ours(&every, &raw) == cases::render_ours(&whole, &raw),
+            "{}: a box around the whole volume changed the image",
+            case.name
+        );
+        if case.post.is_none() {
+            let level = cases::render_level(case, &raw, 1);
+            let level_whole = cases::render_level(&whole, &raw, 1);
+            let near = metrics::psnr_rgb8(&level, &cases::render_ref(case, &raw));
+            let far = metrics::psnr_rgb8(&level_whole, &cases::render_ref(case, &raw));
+            println!(
+                "{} at level 1: {near:.2} dB, uncropped {far:.2} dB",
+                case.name
+            );
+            assert!(
+                near > far + 5.0,
+                "{}: level 1 {near:.2} against {far:.2} dB",
+                case.name
+            );
+        }
+        seen += 1;
+    }
+    assert!(seen >= 2);
+}
+
 #[test]
 fn every_instruction_set_build_is_bit_identical_to_the_baseline() {
     let levels: Vec<Isa> = Isa::ALL
@@ -145,6 +203,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
         opacity: vec![(0.0, alpha)],
         gradient: None,
         min_opacity: 0.0,
+        crop: None,
     };
     let enc = scene::encode(&raw, &class).unwrap();
     let look = Look {
@@ -188,6 +247,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
             depth_cue: None,
             shadows: false,
             fov: None,
+            crop: None,
         };
         let rimg = reference::render_reference(&vol, &tf, None, RefMode::Composite, &view);
         let theirs: f64 = rimg.iter().map(|p| p[0]).sum::<f64>() / rimg.len() as f64;

@@ -5,6 +5,7 @@ use crate::metrics;
 use crate::reference::{self, RefMode, RefShading, RefTf, RefView, RefVolume};
 use crate::synth;
 use shearwarp_core::composite::Mode;
+use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::postclass::PostMode;
 use shearwarp_core::shade::{Light, Lighting};
@@ -63,6 +64,8 @@ pub struct Case {
     pub supersample: usize,
     /// Perspective field of view in degrees (`None`: parallel projection).
     pub fov: Option<f64>,
+    /// Crop box `(lo, hi)`, inclusive voxel indices of the volume.
+    pub crop: Option<([usize; 3], [usize; 3])>,
 }
 
 /// The lighting a case uses.
@@ -122,6 +125,7 @@ macro_rules! case {
             post: None,
             supersample: 1,
             fov: None,
+            crop: None,
         }
     };
 }
@@ -375,6 +379,38 @@ pub const CASES: &[Case] = &[
             Mode::Composite,
             -70.0,
             -35.0,
+            25.0
+        )
+    },
+    // The head cut open by a crop box (its left half and top eighth kept away), the cut
+    // faces turned toward the viewer: classified (the box baked into the encoding) and
+    // post-classified (the box applied per sample).
+    Case {
+        crop: Some(([0, 0, 0], [31, 63, 55])),
+        ..case!(
+            "head64_crop_cut",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -30.0,
+            -60.0,
+            25.0
+        )
+    },
+    Case {
+        crop: Some(([0, 0, 0], [31, 63, 55])),
+        post: Some(PostMode::PostClassified),
+        ..case!(
+            "head64_crop_cut_post",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -30.0,
+            -60.0,
             25.0
         )
     },
@@ -684,12 +720,15 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         };
         let cam = camera(case);
         let mut r = shearwarp_file::post::PostRenderer::with_threads(&vol, threads);
+        let crop = case
+            .crop
+            .map(|(lo, hi)| Crop::new(lo, hi, raw.dims).expect("crop"));
         let frame = r
-            .render(&vol, mode, case.opacity, &look, &cam)
+            .render(&vol, mode, case.opacity, &look, &cam, crop)
             .expect("render");
         return frame.iter().map(|p| [p[0], p[1], p[2]]).collect();
     }
-    let enc = scene::encode(raw, &classification(case)).expect("encode");
+    let enc = scene::encode(raw, &classification(case, raw.dims)).expect("encode");
     render_encoded(case, &enc, threads, Isa::detect())
 }
 
@@ -699,7 +738,7 @@ pub fn render_ours_isa(case: &Case, raw: &RawVolume, isa: Isa) -> Option<Vec<[u8
     if case.post.is_some() {
         return None;
     }
-    let enc = scene::encode(raw, &classification(case)).expect("encode");
+    let enc = scene::encode(raw, &classification(case, raw.dims)).expect("encode");
     Some(render_encoded(case, &enc, 1, isa))
 }
 
@@ -713,12 +752,16 @@ fn camera(case: &Case) -> Camera {
     }
 }
 
-/// The classification of a case's transfer function.
-fn classification(case: &Case) -> Classification {
+/// The classification of a case's transfer function and crop box, for a volume of
+/// `dims`.
+fn classification(case: &Case, dims: [usize; 3]) -> Classification {
     Classification {
         opacity: case.opacity.to_vec(),
         gradient: None,
         min_opacity: 0.0,
+        crop: case
+            .crop
+            .map(|(lo, hi)| Crop::new(lo, hi, dims).expect("crop")),
     }
 }
 
@@ -747,9 +790,12 @@ fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize, isa: Isa) -
 pub fn render_level(case: &Case, raw: &RawVolume, level: usize) -> Vec<[u8; 3]> {
     let (lod, _) = scene::lod(raw, level).expect("level");
     let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing).expect("grid");
-    let enc = scene::encode(&lod, &classification(case))
-        .expect("encode")
-        .as_level(&full);
+    let mut class = classification(case, raw.dims);
+    class.crop = class.crop.map(|c| {
+        c.at_level(raw.dims, lod.dims, 1 << level)
+            .expect("crop at the level")
+    });
+    let enc = scene::encode(&lod, &class).expect("encode").as_level(&full);
     render_encoded(case, &enc, 1, Isa::detect())
 }
 
@@ -789,6 +835,7 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         depth_cue: case.depth_cue.map(|d| (d.front, d.density)),
         shadows: case.shadows,
         fov: case.fov,
+        crop: case.crop,
     };
     let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
     metrics::to_rgb8(&img)

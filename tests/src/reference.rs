@@ -56,6 +56,9 @@ pub struct RefView {
     /// Perspective field of view in degrees across the shorter side (camera on +Z at
     /// the distance where the bounding sphere fills it), or `None` for orthographic.
     pub fov: Option<f64>,
+    /// Crop box `(lo, hi)`, inclusive voxel indices: samples outside its cells
+    /// (`[lo − ½, hi + ½]` in index space) are left out, of the rays and of the shadows.
+    pub crop: Option<([usize; 3], [usize; 3])>,
 }
 
 impl RefVolume {
@@ -231,6 +234,9 @@ struct Ctx<'a> {
     shadow: Option<Vec<f64>>,
     /// Perspective: (eye distance, focal length in pixels).
     perspective: Option<(f64, f64)>,
+    /// The index-space box samples are taken in, per axis: the volume's cells
+    /// `[−½, n − ½]`, or the crop box's.
+    bounds: [[f64; 2]; 3],
 }
 
 impl Ctx<'_> {
@@ -252,7 +258,8 @@ impl Ctx<'_> {
             for a in 0..3 {
                 p[a] += to_light_idx[a] * self.step;
             }
-            if (0..3).any(|a| p[a] < 0.0 || p[a] > (d[a] - 1) as f64) {
+            let outside = |a: usize| p[a] < self.bounds[a][0] || p[a] > self.bounds[a][1];
+            if (0..3).any(|a| p[a] < 0.0 || p[a] > (d[a] - 1) as f64 || outside(a)) {
                 return t;
             }
             let v = self.scalar(&cell(d, p));
@@ -297,12 +304,10 @@ impl Ctx<'_> {
         const EPS: f64 = 1e-9;
         let mut t0 = f64::NEG_INFINITY;
         let mut t1 = f64::INFINITY;
-        // Each voxel is a unit cell: the volume spans [−0.5, n − 0.5] in index space, the
-        // field is extended to the faces by clamping (as the shear-warp slices, one voxel
-        // thick, and their bilinear footprint do).
-        for ((&a, &b), &n) in origin.iter().zip(&dir_idx).zip(&self.vol.dims) {
-            let lo = -0.5;
-            let hi = n as f64 - 0.5;
+        // Each voxel is a unit cell: the volume spans [−0.5, n − 0.5] in index space (a
+        // crop box [lo − 0.5, hi + 0.5]), the field is extended to the faces by clamping
+        // (as the shear-warp slices, one voxel thick, and their bilinear footprint do).
+        for ((&a, &b), &[lo, hi]) in origin.iter().zip(&dir_idx).zip(&self.bounds) {
             if b.abs() < 1e-12 {
                 if a < lo - EPS || a > hi + EPS {
                     return None;
@@ -552,6 +557,10 @@ pub fn render_reference(
         scale: w.min(h) as f64 / diag,
         width: w,
         height: h,
+        bounds: std::array::from_fn(|a| match view.crop {
+            Some((lo, hi)) => [lo[a] as f64 - 0.5, hi[a] as f64 + 0.5],
+            None => [-0.5, vol.dims[a] as f64 - 0.5],
+        }),
         perspective: view.fov.map(|fov| {
             let half = fov.to_radians() / 2.0;
             (0.5 * diag / half.sin(), 0.5 * w.min(h) as f64 / half.tan())
@@ -632,6 +641,7 @@ mod tests {
             depth_cue: None,
             shadows: false,
             fov: None,
+            crop: None,
         }
     }
 

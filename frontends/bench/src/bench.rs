@@ -308,6 +308,7 @@ fn reference_image(
             depth_cue: None,
             shadows: false,
             fov: None,
+            crop: None,
         },
     );
     let img = metrics::to_rgb8(&img);

@@ -82,6 +82,7 @@ impl Appearance {
             opacity: self.opacity.clone(),
             gradient: None,
             min_opacity: self.min_opacity,
+            crop: None,
         }
     }
 

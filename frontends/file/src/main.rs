@@ -2,6 +2,7 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use shearwarp_core::composite::{FlatVoxels, Mode};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::shade::{Light, Lighting};
 use shearwarp_core::view::Camera;
@@ -267,6 +268,12 @@ struct RenderOpts {
     /// mapping, else in stored values.
     #[arg(long, value_name = "C:W", allow_hyphen_values = true)]
     window: Option<String>,
+    /// Crop box X0:X1,Y0:Y1,Z0:Z1: the voxels kept, inclusive indices of the volume as
+    /// stored (x fastest); a bound left out is the volume's edge (`:90,,` keeps x
+    /// 0..=90). Classified modes bake it into the encoding; post/preint/iso apply it
+    /// per frame.
+    #[arg(long, value_name = "X0:X1,Y0:Y1,Z0:Z1")]
+    crop: Option<String>,
 }
 
 /// A bad command-line value or option combination (exit code 2).
@@ -404,11 +411,12 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             || o.preset.is_some()
             || o.tf.is_some()
             || o.window.is_some()
+            || o.crop.is_some()
             || o.lod > 0
         {
             return Err(usage(format!(
                 "{}: opacity is baked into a .swv file; re-encode it with `shearwarp encode` \
-                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16 \
+                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16/--crop \
                  (or to render a --lod level)",
                 path.display()
             )));
@@ -428,10 +436,16 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
     } else {
         let (raw, tf) = load_with_tf(path, o, out)?;
         let sp = out.spinner(format!("classifying and encoding {name}"));
-        let class = Classification {
+        let crop = o
+            .crop
+            .as_deref()
+            .map(|s| parse_crop(s, raw.dims))
+            .transpose()?;
+        let mut class = Classification {
             opacity: tf.opacity.clone(),
             gradient: tf.gradient.clone(),
             min_opacity: o.min_opacity,
+            crop,
         };
         let enc = if o.lod > 0 {
             if o.lod > 8 {
@@ -439,6 +453,13 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             }
             let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing)?;
             let (level, _) = scene::lod(&raw, o.lod)?;
+            if let (Some(c), Some(s)) = (crop, &o.crop) {
+                // The box in the level's voxels: those centred in its cells.
+                let at = c.at_level(raw.dims, level.dims, 1 << o.lod);
+                class.crop = Some(at.ok_or_else(|| {
+                    usage(format!("--crop '{s}': holds no voxel of --lod {}", o.lod))
+                })?);
+            }
             scene::encode(&level, &class)?.as_level(&full)
         } else {
             scene::encode(&raw, &class)?
@@ -634,6 +655,7 @@ struct Dense {
     opacity: Vec<(f64, f64)>,
     look: Look,
     camera: Camera,
+    crop: Option<Crop>,
 }
 
 fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn Error>> {
@@ -643,9 +665,19 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
             path.display()
         )));
     }
+    if o.lod > 0 {
+        return Err(usage(
+            "--lod renders the classified volume; --mode post/preint/iso take the full one",
+        ));
+    }
     let camera = camera_of(o)?;
     let threads = thread_count(o)?;
     let (raw, tf) = load_with_tf(path, o, out)?;
+    let crop = o
+        .crop
+        .as_deref()
+        .map(|s| parse_crop(s, raw.dims))
+        .transpose()?;
     let sp = out.spinner("quantising and computing normals".into());
     let vol = post::DenseVolume::new(&raw)?;
     sp.finish_and_clear();
@@ -673,7 +705,50 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
         opacity: tf.opacity,
         look,
         camera,
+        crop,
     })
+}
+
+/// `--crop X0:X1,Y0:Y1,Z0:Z1` for a volume of `dims`: three ranges of inclusive voxel
+/// indices, either bound of each optional (`10:`, `:90`, `:` or nothing: up to the
+/// volume's edge).
+fn parse_crop(s: &str, dims: [usize; 3]) -> Result<Crop, Box<dyn Error>> {
+    let bad = |why: String| usage(format!("--crop '{s}': {why}"));
+    let parts: Vec<&str> = s.split(',').collect();
+    let [x, y, z] = parts[..] else {
+        return Err(bad("expected three ranges X0:X1,Y0:Y1,Z0:Z1".into()));
+    };
+    let mut lo = [0; 3];
+    let mut hi = [0; 3];
+    for (a, part) in [x, y, z].into_iter().enumerate() {
+        let (l, h) = match part.trim() {
+            "" => ("", ""),
+            p => p
+                .split_once(':')
+                .ok_or_else(|| bad(format!("range '{p}' is not LO:HI")))?,
+        };
+        let bound = |t: &str, edge: usize| -> Result<usize, Box<dyn Error>> {
+            match t.trim() {
+                "" => Ok(edge),
+                t => t
+                    .parse()
+                    .map_err(|_| bad(format!("'{t}' is not a voxel index"))),
+            }
+        };
+        let axis = ["x", "y", "z"][a];
+        lo[a] = bound(l, 0)?;
+        hi[a] = bound(h, dims[a] - 1)?;
+        if let Some(&far) = [lo[a], hi[a]].iter().find(|&&b| b >= dims[a]) {
+            return Err(bad(format!(
+                "{axis} bound {far} is outside the volume (0..={})",
+                dims[a] - 1
+            )));
+        }
+        if lo[a] > hi[a] {
+            return Err(bad(format!("{axis} range {}:{} is empty", lo[a], hi[a])));
+        }
+    }
+    Ok(Crop::new(lo, hi, dims)?)
 }
 
 fn parse_depth_cue(s: &str) -> Result<DepthCue, Box<dyn Error>> {
@@ -850,7 +925,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     out,
                     |cam| {
                         Ok(d.renderer
-                            .render(&d.vol, d.mode, &d.opacity, &d.look, cam)?)
+                            .render(&d.vol, d.mode, &d.opacity, &d.look, cam, d.crop)?)
                     },
                     |_| Err(usage("--png16 works with --mode composite or mip")),
                 )?;
@@ -923,7 +998,9 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let shift = if i % 2 == 0 { 0.0 } else { 0.04 * span };
                 let op: Vec<(f64, f64)> = d.opacity.iter().map(|&(v, a)| (v + shift, a)).collect();
                 let t = Instant::now();
-                let frame = d.renderer.render(&d.vol, d.mode, &op, &d.look, cam)?;
+                let frame = d
+                    .renderer
+                    .render(&d.vol, d.mode, &op, &d.look, cam, d.crop)?;
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 std::hint::black_box(frame);
                 Ok(ms)

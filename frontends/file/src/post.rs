@@ -5,6 +5,7 @@ use crate::scene::{opacity_points, Look};
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{self, Grid, OpacityTf, Scalars, Voxel};
 use shearwarp_core::composite::{Intermediate, Rgba};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::opaque;
 use shearwarp_core::postclass;
 use shearwarp_core::shade::ShadeTable;
@@ -107,7 +108,8 @@ impl PostRenderer {
         self.threads
     }
 
-    /// Renders one frame; `opacity` is the opacity transfer function over raw values.
+    /// Renders one frame; `opacity` is the opacity transfer function over raw values,
+    /// and samples outside `crop`'s cells are left out.
     pub fn render(
         &mut self,
         vol: &DenseVolume,
@@ -115,6 +117,7 @@ impl PostRenderer {
         opacity: &[(f64, f64)],
         look: &Look,
         camera: &Camera,
+        crop: Option<Crop>,
     ) -> Result<Vec<[u8; 4]>, Error> {
         let pts = opacity_points(opacity);
         let op = OpacityTf::new(&pts)?.build_quantized(vol.range);
@@ -125,6 +128,7 @@ impl PostRenderer {
             color: &look.color,
             lighting: look.lighting.as_ref(),
             ert_threshold: look.ert_threshold,
+            crop,
         };
         if self.threads == 1 {
             if self.out_row.len() < camera.width {

@@ -12,6 +12,7 @@
 use crate::bigbuf;
 use crate::scene::{transpose, AxisArrays, Strided};
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::Error;
 
@@ -25,6 +26,8 @@ pub struct Classifier<'a> {
     pub gradient_table: Option<&'a [u16; 256]>,
     /// Voxels at or below this opacity are transparent ([`rle::is_visible`]).
     pub threshold: u8,
+    /// Voxels outside this box are made transparent as they are classified.
+    pub crop: Option<Crop>,
 }
 
 /// Slices classified at a time, which stay in the cache between the classifier writing
@@ -84,6 +87,9 @@ fn encode_z_part(c: &Classifier<'_>, zs: core::ops::Range<usize>) -> Result<Axis
         let d = &mut dense[..(z1 - z0) * plane];
         let (o, g, t) = (c.opacity_table, c.gradient_table, Some(c.threshold));
         classify::classify_slices(c.grid, c.scalars, o, g, t, z0..z1, d)?;
+        if let Some(crop) = &c.crop {
+            crop.apply(c.grid, z0..z1, d)?;
+        }
         // The slab as a volume of its own: the encoder reads only its dimensions and
         // layout.
         let slab = Grid::new([nx, ny, z1 - z0], c.grid.spacing)?.with_layout(c.grid.layout());
@@ -306,6 +312,9 @@ mod tests {
         let mut dense = vec![Voxel::default(); c.grid.voxel_count()];
         let (o, g, t) = (c.opacity_table, c.gradient_table, Some(c.threshold));
         classify::classify_above(c.grid, c.scalars, o, g, t, &mut dense).unwrap();
+        if let Some(crop) = &c.crop {
+            crop.apply(c.grid, 0..c.grid.dims[2], &mut dense).unwrap();
+        }
         Axis::ALL.map(|axis| {
             let sz = rle::measure(&dense, c.grid, axis, c.threshold).unwrap();
             let mut a = (
@@ -372,13 +381,26 @@ mod tests {
         ] {
             let data = scalars(dims);
             let grid = Grid::new(dims, [1.0, 2.0, 0.5]).unwrap();
-            for (gradient_table, threshold) in [(None, 0), (None, 30), (Some(&grad), 12)] {
+            // The middle half of every side, cropped.
+            let middle = Crop::new(
+                dims.map(|n| n / 4),
+                dims.map(|n| (3 * n / 4).min(n - 1)),
+                dims,
+            );
+            let cases = [
+                (None, 0, None),
+                (None, 30, None),
+                (Some(&grad), 12, None),
+                (None, 0, Some(middle.unwrap())),
+            ];
+            for (gradient_table, threshold, crop) in cases {
                 let c = Classifier {
                     grid: &grid,
                     scalars: Scalars::U8(&data),
                     opacity_table: &ramp,
                     gradient_table,
                     threshold,
+                    crop,
                 };
                 for bits in 0..8 {
                     let g = grid.with_layout(Layout::from_bits(bits).unwrap());

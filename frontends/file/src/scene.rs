@@ -6,6 +6,7 @@ use crate::reslice;
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel};
 use shearwarp_core::composite::{FlatVoxels, Mode};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::shade::Lighting;
@@ -21,6 +22,9 @@ pub struct Classification {
     pub gradient: Option<Vec<(f64, f64)>>,
     /// Voxels with opacity at or below this (0..1) are stored as transparent.
     pub min_opacity: f64,
+    /// Voxels outside this box (of the volume classified) are stored as transparent
+    /// ([`shearwarp_core::crop`]).
+    pub crop: Option<Crop>,
 }
 
 /// How frames take voxels with a zero gradient (`--flat-voxels` of the CLI and the
@@ -116,6 +120,7 @@ pub fn encode_threads(
         opacity_table: &table,
         gradient_table: gtable.as_ref(),
         threshold,
+        crop: class.crop,
     };
     let [x, y, z] = reslice::encode_all(&classifier, threads)?;
     let runs = [x.0, y.0, z.0];

@@ -90,6 +90,38 @@ fn every_isa_level_renders_the_same_png() {
     }
 }
 
+/// `--crop`: a box of the whole volume (bounds left out) changes nothing; a half box
+/// changes the picture in the classified and the unclassified modes, and at a level of
+/// detail; a box encoded into a `.swv` renders as the same box given at render time.
+#[test]
+fn crop_boxes_from_the_command_line() {
+    let t = Tmp::new("crop");
+    let h = head64();
+    for mode in ["composite", "post"] {
+        let with = |crop: Option<&str>, name: &str| {
+            let mut a = vec![h.as_str(), "--shading", "--mode", mode];
+            if let Some(c) = crop {
+                a.extend(["--crop", c]);
+            }
+            render(&a, &t.p(&format!("{mode}-{name}.png")))
+        };
+        let plain = with(None, "plain");
+        assert!(with(Some(",,"), "every") == plain, "{mode}: the whole box");
+        assert!(
+            with(Some("0:63,:,0:"), "bounds") == plain,
+            "{mode}: the edges"
+        );
+        assert!(with(Some(":31,,"), "half") != plain, "{mode}: half of x");
+    }
+    let half = render(&[&h, "--crop", ":31,,"], &t.p("half.png"));
+    let swv = t.p("half.swv");
+    let (code, _, err) = shearwarp(&["encode", &h, "--crop", ":31,,", "-o", &swv]);
+    assert_eq!(code, 0, "{err}");
+    assert!(render(&[&swv], &t.p("half-swv.png")) == half, "encoded box");
+    let level = render(&[&h, "--lod", "1", "--crop", ":31,,"], &t.p("lod.png"));
+    assert!(level != render(&[&h, "--lod", "1"], &t.p("lod-plain.png")));
+}
+
 #[test]
 fn unclassified_modes_render_the_same_png_on_any_thread_count() {
     let t = Tmp::new("post-threads");
@@ -643,6 +675,40 @@ fn bad_inputs_exit_2_with_one_line() {
     cases.push((
         s(&["render", &corrupt, "-o", &o]),
         "corrupt.swv: invalid .swv volume".into(),
+    ));
+    // Bad crop boxes, and boxes or levels where they cannot apply.
+    for (extra, want) in [
+        (
+            &[":10"][..],
+            "--crop ':10': expected three ranges X0:X1,Y0:Y1,Z0:Z1",
+        ),
+        (&["5:2,,"], "--crop '5:2,,': x range 5:2 is empty"),
+        (
+            &[",0:64,"],
+            "--crop ',0:64,': y bound 64 is outside the volume (0..=63)",
+        ),
+        (&[",,a:"], "--crop ',,a:': 'a' is not a voxel index"),
+        (
+            &[",,70:"],
+            "--crop ',,70:': z bound 70 is outside the volume (0..=63)",
+        ),
+        (&[",12,"], "--crop ',12,': range '12' is not LO:HI"),
+        (
+            &["3:3,,", "--lod", "2"],
+            "--crop '3:3,,': holds no voxel of --lod 2",
+        ),
+        (
+            &[",,", "--mode", "post", "--lod", "1"],
+            "--lod renders the classified volume",
+        ),
+    ] {
+        let mut a = s(&["render", &head64(), "-o", &o, "--crop"]);
+        a.extend(s(extra));
+        cases.push((a, want.into()));
+    }
+    cases.push((
+        s(&["render", &swv, "-o", &o, "--crop", ":31,,"]),
+        "whole.swv: opacity is baked into a .swv file".into(),
     ));
     // Inconsistent DICOM slice sizes (Rows patched in one file of the shared series).
     if let Some(dir) = shared("dicom/mr_pd_brain_series") {

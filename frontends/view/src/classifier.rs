@@ -74,10 +74,14 @@ impl Classifier {
         let pts: Vec<(f64, [f64; 1])> = class.opacity.iter().map(|&(v, a)| (v, [a])).collect();
         let mut table = vec![0u8; s.value_count()];
         OpacityTf::new(&pts)?.build_table(&mut table);
-        Ok(match &self.raw.voxels {
+        let mut dense = match &self.raw.voxels {
             Voxels::U8(d) => relabel(&self.base, d, &table),
             Voxels::U16(d) => relabel(&self.base, d, &table),
-        })
+        };
+        if let Some(crop) = &class.crop {
+            crop.apply(&self.grid, 0..self.grid.dims[2], &mut dense)?;
+        }
+        Ok(dense)
     }
 
     /// Encodes `axes` under `class`, reusing `dense` if it was relabelled for `class`.
@@ -192,7 +196,10 @@ pub struct LevelRle {
 }
 
 fn same(a: &Classification, b: &Classification) -> bool {
-    a.opacity == b.opacity && a.min_opacity == b.min_opacity && a.gradient == b.gradient
+    a.opacity == b.opacity
+        && a.min_opacity == b.min_opacity
+        && a.gradient == b.gradient
+        && a.crop == b.crop
 }
 
 impl LevelRle {
@@ -330,6 +337,7 @@ mod tests {
                     opacity,
                     gradient: None,
                     min_opacity: [0.02, 0.0, 0.5, 0.0][k],
+                    crop: None,
                 };
                 let mine = c.encode(&class).unwrap();
                 let mut theirs = scene::encode(&raw, &class).unwrap();
@@ -394,6 +402,7 @@ mod tests {
             opacity: vec![(lo, 0.0), (lo + 60.0, 0.7)],
             gradient: None,
             min_opacity: 0.02,
+            crop: None,
         };
         let (a, b) = (class(40.0), class(90.0));
         let mut level = c.encode(&a).unwrap();
@@ -454,6 +463,7 @@ mod tests {
             opacity: vec![(0.0, 1.0)],
             gradient: Some(vec![(0.0, 1.0)]),
             min_opacity: 0.0,
+            crop: None,
         };
         assert!(c.encode(&class).is_err());
         class.gradient = None;

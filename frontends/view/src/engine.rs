@@ -130,6 +130,7 @@ impl Scene {
             opacity: preset::opacity_points(&PRESETS[view.preset], view.wl, self.range),
             gradient: None,
             min_opacity: self.settings.min_opacity,
+            crop: None,
         }
     }
 

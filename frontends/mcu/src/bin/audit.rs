@@ -273,6 +273,7 @@ fn run() -> Result<(), Error> {
         color: &color,
         lighting: black_box(true).then_some(&light),
         ert_threshold: black_box(0.95),
+        crop: None,
     };
     let mut pws = PostWorkspace {
         pixels: some(&mut pixels),
