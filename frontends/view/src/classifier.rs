@@ -324,11 +324,14 @@ mod tests {
             let raw = Arc::new(raw);
             let c = Classifier::new(Arc::clone(&raw)).unwrap();
             let mut comp = Compositor::new(&c.grid(), 2);
+            // The last case cuts the volume open (the viewer's C key: lower half in y).
+            let half = crate::state::Cut::Half(1).crop(raw.dims);
             for (k, opacity) in [
                 vec![(0.0, 0.0), (60.0, 0.0), (150.0, 0.5), (255.0, 0.9)],
                 vec![(20.0, 0.0), (3000.0, 1.0)],
                 vec![(0.0, 0.3)],
                 vec![(0.0, 0.6)],
+                vec![(0.0, 0.0), (60.0, 0.0), (150.0, 0.5), (255.0, 0.9)],
             ]
             .into_iter()
             .enumerate()
@@ -336,8 +339,8 @@ mod tests {
                 let class = Classification {
                     opacity,
                     gradient: None,
-                    min_opacity: [0.02, 0.0, 0.5, 0.0][k],
-                    crop: None,
+                    min_opacity: [0.02, 0.0, 0.5, 0.0, 0.02][k],
+                    crop: if k == 4 { half } else { None },
                 };
                 let mine = c.encode(&class).unwrap();
                 let mut theirs = scene::encode(&raw, &class).unwrap();

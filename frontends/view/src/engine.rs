@@ -124,13 +124,20 @@ impl Scene {
         })
     }
 
-    /// The full-level classification of `view`.
-    pub fn classification(&self, view: &ViewState) -> Classification {
+    /// The classification of `view` for a level of `dims` voxels (the full volume's, or
+    /// the preview's, which keeps its voxels centred in the full volume's box).
+    pub fn classification(&self, view: &ViewState, dims: [usize; 3]) -> Classification {
+        let full = self.full.dims;
+        let crop = view.cut.crop(full).and_then(|c| {
+            // The preview is level 1: each of its voxels stands for two.
+            let factor = if dims == full { 1 } else { 2 };
+            c.at_level(full, dims, factor)
+        });
         Classification {
             opacity: preset::opacity_points(&PRESETS[view.preset], view.wl, self.range),
             gradient: None,
             min_opacity: self.settings.min_opacity,
-            crop: None,
+            crop,
         }
     }
 
@@ -289,7 +296,7 @@ impl Engine {
     }
 
     fn preview(&mut self, job: &Job) -> Result<Outcome, Error> {
-        let class = self.scene.classification(&job.view);
+        let class = self.scene.classification(&job.view, self.low.grid.dims);
         let camera = self.scene.camera(&job.view);
         let axis = Factorization::new(&self.low.grid, &camera)?.axis;
         let encode_ms = self.low.ensure(&self.low_classifier, &class, axis)?;
@@ -328,7 +335,7 @@ impl Engine {
                 reason: render::CANCELLED,
             });
         }
-        let class = self.scene.classification(&job.view);
+        let class = self.scene.classification(&job.view, self.scene.full.dims);
         let camera = self.scene.camera(&job.view);
         let grid =
             shearwarp_core::classify::Grid::new(self.scene.full.dims, self.scene.full.spacing)?;

@@ -190,6 +190,8 @@ struct App {
     name: String,
     u16: bool,
     range: (u16, u16),
+    /// The full volume's voxels (the C key's crop boxes are of these).
+    dims: [usize; 3],
     size: [usize; 2],
     min_opacity: f64,
     ert: f64,
@@ -404,6 +406,9 @@ impl App {
                 _ => " | shadows",
             };
         }
+        if let state::Cut::Half(a) = v.cut {
+            t += &format!(" | cut: {} ≤ ½", ["x", "y", "z"][a.min(2)]);
+        }
         if v.zoom != 1.0 || v.pan != [0.0; 2] {
             t += &format!(" | zoom {:.2}", v.zoom);
         }
@@ -449,6 +454,9 @@ impl App {
         if view.depth_cue && !view.is_mip() && !view.perspective {
             let c = state::DEPTH_CUE;
             a.push(format!("--depth-cue {}:{}", c.front, c.density));
+        }
+        if let Some(spec) = view.cut.spec(self.dims) {
+            a.push(format!("--crop {spec}"));
         }
         if self.u16 {
             a.push("--u16".into());
@@ -645,6 +653,7 @@ fn map_key(k: Key, shift: bool) -> Option<ViewKey> {
         Key::W => ViewKey::Shadows,
         Key::D => ViewKey::DepthCue,
         Key::O => ViewKey::Perspective,
+        Key::C => ViewKey::Cut,
         Key::S => ViewKey::Screenshot,
         Key::T => ViewKey::SaveTf,
         Key::P => ViewKey::Print,
@@ -754,6 +763,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn Error>> {
         name,
         u16: cli.u16 && u16_data,
         range,
+        dims,
         size: [width, height],
         min_opacity: cli.min_opacity,
         ert: cli.ert,

@@ -3,6 +3,7 @@
 //! a person does.
 
 use crate::preset::{WindowLevel, PRESETS};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
 
 /// The fog of the depth-cue toggle: full brightness at the nearest corner of the volume,
@@ -31,6 +32,45 @@ pub const LEVEL_PER_KEY: f64 = 0.01;
 /// Window factor per key press.
 pub const WINDOW_PER_KEY: f64 = 1.15;
 
+/// How the volume is cut open (the C key): the whole of it, or the lower half of its
+/// voxel indices along one axis, a crop box ([`shearwarp_core::crop`]) that shows the
+/// inside on the cut face.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Cut {
+    #[default]
+    Whole,
+    /// Voxels `0..=(n − 1)/2` along x, y or z (0, 1, 2).
+    Half(usize),
+}
+
+impl Cut {
+    /// The next cut in the C key's cycle: whole, half in x, in y, in z.
+    pub fn next(self) -> Cut {
+        match self {
+            Cut::Whole => Cut::Half(0),
+            Cut::Half(a) if a < 2 => Cut::Half(a + 1),
+            Cut::Half(_) => Cut::Whole,
+        }
+    }
+
+    /// The box of a volume of `dims`, or `None` for the whole.
+    pub fn crop(self, dims: [usize; 3]) -> Option<Crop> {
+        let Cut::Half(axis) = self else {
+            return None;
+        };
+        let mut hi = dims.map(|n| n.saturating_sub(1));
+        hi[axis.min(2)] /= 2;
+        Crop::new([0; 3], hi, dims).ok()
+    }
+
+    /// The same box as `shearwarp render --crop` takes it, for a volume of `dims`.
+    pub fn spec(self, dims: [usize; 3]) -> Option<String> {
+        let c = self.crop(dims)?;
+        let r = |a: usize| format!("{}:{}", c.lo()[a], c.hi()[a]);
+        Some(format!("{},{},{}", r(0), r(1), r(2)))
+    }
+}
+
 /// Everything that decides a frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ViewState {
@@ -57,6 +97,8 @@ pub struct ViewState {
     /// Perspective projection (the field of view is a setting); depth cueing and
     /// shadows are parallel-only and left out while it is on.
     pub perspective: bool,
+    /// The crop box the volume is cut open by.
+    pub cut: Cut,
 }
 
 impl ViewState {
@@ -75,6 +117,7 @@ impl ViewState {
             depth_cue: false,
             shadows: false,
             perspective: false,
+            cut: Cut::Whole,
         }
     }
 
@@ -86,7 +129,7 @@ impl ViewState {
     /// True if only the placement differs: the classification (and so the encoded
     /// volumes) of `self` and `other` are the same.
     pub fn same_classification(&self, other: &ViewState) -> bool {
-        self.preset == other.preset && self.wl == other.wl
+        self.preset == other.preset && self.wl == other.wl && self.cut == other.cut
     }
 }
 
@@ -124,6 +167,7 @@ pub enum ViewKey {
     Shadows,
     DepthCue,
     Perspective,
+    Cut,
     Screenshot,
     SaveTf,
     Print,
@@ -184,6 +228,11 @@ pub const KEYS: &[(&str, &str, ViewKey)] = &[
         "o",
         "O: perspective projection on/off (parallel-only: depth cueing, shadows)",
         ViewKey::Perspective,
+    ),
+    (
+        "c",
+        "C: cut the volume open: whole, lower half in x, in y, in z",
+        ViewKey::Cut,
     ),
     ("s", "S: screenshot to PNG", ViewKey::Screenshot),
     (
@@ -289,6 +338,7 @@ pub fn apply(view: &mut ViewState, home: &ViewState, input: Input, size: [usize;
             ViewKey::Shadows => view.shadows = !view.shadows,
             ViewKey::DepthCue => view.depth_cue = !view.depth_cue,
             ViewKey::Perspective => view.perspective = !view.perspective,
+            ViewKey::Cut => view.cut = view.cut.next(),
             ViewKey::Screenshot => return Request::Screenshot,
             ViewKey::SaveTf => return Request::SaveTf,
             ViewKey::Print => return Request::Print,
@@ -412,6 +462,29 @@ mod tests {
             apply(&mut v, &home, Input::Key(ViewKey::ZoomOut), size);
         }
         assert_eq!(v.zoom, ZOOM_RANGE.0);
+    }
+
+    #[test]
+    fn the_c_key_cycles_the_cuts_and_their_boxes() {
+        let home = ViewState::new(0.0, 0.0, 0, true);
+        let mut v = home;
+        let dims = [64, 65, 1];
+        let mut seen = Vec::new();
+        for _ in 0..4 {
+            seen.push(v.cut.spec(dims));
+            let mut w = v;
+            apply(&mut w, &home, Input::Key(ViewKey::Cut), [100, 100]);
+            assert!(!w.same_classification(&v), "a new cut is a new encoding");
+            v = w;
+        }
+        assert_eq!(v.cut, Cut::Whole);
+        let want = [
+            None,
+            Some("0:31,0:64,0:0"),
+            Some("0:63,0:32,0:0"),
+            Some("0:63,0:64,0:0"),
+        ];
+        assert_eq!(seen, want.map(|s| s.map(String::from)));
     }
 
     #[test]
