@@ -70,11 +70,10 @@ impl Crop {
         (self.lo.iter().zip(&self.hi).zip(&p)).all(|((l, h), v)| l <= v && v <= h)
     }
 
-    /// The kept cells along each axis as half-open ranges of index-space position, in
-    /// voxels: voxel `i` is the unit cell `[i − ½, i + ½]`, so the box spans
-    /// `[lo − ½, hi + ½]`, as a whole volume of `n` voxels spans `[−½, n − ½]`.
-    /// Returned as `(2·lo − 1, 2·hi + 1)`, in half voxels, so that the bounds are
-    /// integers.
+    /// The kept cells along each axis as closed ranges of index-space position: voxel
+    /// `i` is the unit cell `[i − ½, i + ½]`, so the box spans `[lo − ½, hi + ½]`, as a
+    /// whole volume of `n` voxels spans `[−½, n − ½]`. Returned as `(2·lo − 1, 2·hi +
+    /// 1)`, in half voxels, so that the bounds are integers.
     pub fn cells(&self) -> [(i64, i64); 3] {
         let half = |v: usize| 2 * v as i64;
         let [l0, l1, l2] = self.lo.map(half);
@@ -116,12 +115,14 @@ impl Crop {
         };
         let [x0, y0, z0] = self.lo;
         let [x1, y1, z1] = self.hi;
-        for (z, slice) in slices.zip(out.chunks_exact_mut(plane)) {
+        // `Grid` keeps every side at least 1; `max` says so to the compiler, so that
+        // `chunks_exact_mut` keeps no panic path (the firmware links only without one).
+        for (z, slice) in slices.zip(out.chunks_exact_mut(plane.max(1))) {
             if z < z0 || z > z1 {
                 clear(slice);
                 continue;
             }
-            for (y, row) in slice.chunks_exact_mut(nx).enumerate() {
+            for (y, row) in slice.chunks_exact_mut(nx.max(1)).enumerate() {
                 if y < y0 || y > y1 {
                     clear(row);
                 } else {

@@ -6,8 +6,9 @@
 //!
 //! The renderer firmware (`src/main.rs`) covers what a device runs: the `.swv` stream,
 //! compositing and the warp. This adds classification, gradients and normals, run-length
-//! encoding, the `.swv` writer, post-classified, pre-integrated and isosurface rendering,
-//! the level-of-detail pyramid, perspective and supersampled frames.
+//! encoding, crop boxes, the `.swv` writer, post-classified, pre-integrated and
+//! isosurface rendering, the level-of-detail pyramid, perspective and supersampled
+//! frames.
 #![no_std]
 #![no_main]
 
@@ -18,6 +19,7 @@ use shearwarp_core::classify::{
 };
 use shearwarp_core::composite::Intermediate;
 use shearwarp_core::composite::{Mode, Rgba};
+use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::io::IoError;
 use shearwarp_core::postclass::{self, PostMode, PostSettings, PostWorkspace};
@@ -115,6 +117,15 @@ fn run() -> Result<(), Error> {
         slices,
         some(&mut dense),
     )?;
+    // A crop box over the classified records, and on a coarser level.
+    let crop = Crop::new(
+        black_box([0, 0, 0]),
+        black_box([1, 1, 1]),
+        black_box(grid.dims),
+    )?;
+    crop.apply(&grid, black_box(0..0), some(&mut dense))?;
+    black_box(crop.at_level(grid.dims, black_box([1, 1, 1]), black_box(2)));
+    black_box(crop.contains(black_box([0, 0, 0])));
     black_box(normal::decode(normal::encode(
         black_box(1),
         black_box(2),
@@ -273,7 +284,7 @@ fn run() -> Result<(), Error> {
         color: &color,
         lighting: black_box(true).then_some(&light),
         ert_threshold: black_box(0.95),
-        crop: None,
+        crop: black_box(Some(crop)),
     };
     let mut pws = PostWorkspace {
         pixels: some(&mut pixels),
