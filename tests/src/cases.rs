@@ -401,6 +401,21 @@ pub const CASES: &[Case] = &[
     },
     Case {
         crop: Some(([0, 0, 0], [31, 63, 55])),
+        fov: Some(60.0),
+        ..case!(
+            "head64_crop_cut_persp60",
+            Vol::Fixture("mr_head_colin27_64.json"),
+            HEAD_OPACITY,
+            HEAD_COLOR,
+            true,
+            Mode::Composite,
+            -30.0,
+            -60.0,
+            25.0
+        )
+    },
+    Case {
+        crop: Some(([0, 0, 0], [31, 63, 55])),
         post: Some(PostMode::PostClassified),
         ..case!(
             "head64_crop_cut_post",
