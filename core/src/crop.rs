@@ -60,9 +60,13 @@ impl Crop {
         self.hi
     }
 
-    /// Whether the box keeps every voxel of a volume of `dims`.
-    pub fn is_whole(&self, dims: [usize; 3]) -> bool {
-        self.lo == [0; 3] && self.hi.iter().zip(&dims).all(|(&h, &n)| h + 1 >= n)
+    /// The box that keeps every voxel of a volume of `dims` (each side at least 1, as
+    /// [`Grid`] has them).
+    pub fn whole(dims: [usize; 3]) -> Self {
+        Crop {
+            lo: [0; 3],
+            hi: dims.map(|n| n.saturating_sub(1)),
+        }
     }
 
     /// Whether voxel `(x, y, z)` is kept.
@@ -209,7 +213,7 @@ mod tests {
         assert!(Crop::new([2, 0, 0], [1, 3, 2], dims).is_err());
         assert!(Crop::new([0, 0, 0], [4, 4, 2], dims).is_err());
         let crop = Crop::new([0; 3], [4, 3, 2], dims).unwrap();
-        assert!(crop.is_whole(dims));
+        assert_eq!(crop, Crop::whole(dims));
         let grid = Grid::new(dims, [1.0; 3]).unwrap();
         let mut short = [Voxel::default(); 19];
         assert!(crop.apply(&grid, 0..1, &mut short).is_err());

@@ -384,11 +384,8 @@ pub fn prepare<'a>(
         build_preintegration(settings.opacity, settings.color, view.step_ratio, preint)?;
     }
     // The box, checked against this volume (it may have been made for another).
-    let (lo, hi) = match settings.crop {
-        Some(c) => (c.lo(), c.hi()),
-        None => ([0; 3], grid.dims.map(|n| n.saturating_sub(1))),
-    };
-    let cells = Crop::new(lo, hi, grid.dims)?.cells();
+    let c = settings.crop.unwrap_or(Crop::whole(grid.dims));
+    let cells = Crop::new(c.lo(), c.hi(), grid.dims)?.cells();
     let iso_q8 = match settings.mode {
         PostMode::Isosurface(v) => {
             if !(v.is_finite() && (0.0..=255.0).contains(&v)) {

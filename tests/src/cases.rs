@@ -130,6 +130,23 @@ macro_rules! case {
     };
 }
 
+/// The Colin27 head at 64³, cut open by a crop box; its variants in [`CASES`] change
+/// the projection or the path.
+const HEAD_CUT: Case = Case {
+    crop: Some(([0, 0, 0], [31, 63, 55])),
+    ..case!(
+        "head64_crop_cut",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        HEAD_OPACITY,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        -30.0,
+        -60.0,
+        25.0
+    )
+};
+
 /// Thresholds: shear-warp classifies voxels before interpolating, the reference after,
 /// so surfaces that are sharp in the data (the hard-edged box, the unshaded sphere rims)
 /// land up to half a voxel apart and thin iso-bands (Marschner–Lobb) alias; those cases
@@ -383,51 +400,18 @@ pub const CASES: &[Case] = &[
         )
     },
     // The head cut open by a crop box (its left half and top eighth kept away), the cut
-    // faces turned toward the viewer: classified (the box baked into the encoding) and
-    // post-classified (the box applied per sample).
+    // faces turned toward the viewer: classified (the box baked into the encoding), in
+    // perspective, and post-classified (the box applied per sample).
+    HEAD_CUT,
     Case {
-        crop: Some(([0, 0, 0], [31, 63, 55])),
-        ..case!(
-            "head64_crop_cut",
-            Vol::Fixture("mr_head_colin27_64.json"),
-            HEAD_OPACITY,
-            HEAD_COLOR,
-            true,
-            Mode::Composite,
-            -30.0,
-            -60.0,
-            25.0
-        )
-    },
-    Case {
-        crop: Some(([0, 0, 0], [31, 63, 55])),
+        name: "head64_crop_cut_persp60",
         fov: Some(60.0),
-        ..case!(
-            "head64_crop_cut_persp60",
-            Vol::Fixture("mr_head_colin27_64.json"),
-            HEAD_OPACITY,
-            HEAD_COLOR,
-            true,
-            Mode::Composite,
-            -30.0,
-            -60.0,
-            25.0
-        )
+        ..HEAD_CUT
     },
     Case {
-        crop: Some(([0, 0, 0], [31, 63, 55])),
+        name: "head64_crop_cut_post",
         post: Some(PostMode::PostClassified),
-        ..case!(
-            "head64_crop_cut_post",
-            Vol::Fixture("mr_head_colin27_64.json"),
-            HEAD_OPACITY,
-            HEAD_COLOR,
-            true,
-            Mode::Composite,
-            -30.0,
-            -60.0,
-            25.0
-        )
+        ..HEAD_CUT
     },
     Case {
         post: Some(PostMode::PostClassified),

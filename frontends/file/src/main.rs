@@ -436,11 +436,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
     } else {
         let (raw, tf) = load_with_tf(path, o, out)?;
         let sp = out.spinner(format!("classifying and encoding {name}"));
-        let crop = o
-            .crop
-            .as_deref()
-            .map(|s| parse_crop(s, raw.dims))
-            .transpose()?;
+        let crop = crop_of(o, raw.dims)?;
         let mut class = Classification {
             opacity: tf.opacity.clone(),
             gradient: tf.gradient.clone(),
@@ -673,11 +669,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let camera = camera_of(o)?;
     let threads = thread_count(o)?;
     let (raw, tf) = load_with_tf(path, o, out)?;
-    let crop = o
-        .crop
-        .as_deref()
-        .map(|s| parse_crop(s, raw.dims))
-        .transpose()?;
+    let crop = crop_of(o, raw.dims)?;
     let sp = out.spinner("quantising and computing normals".into());
     let vol = post::DenseVolume::new(&raw)?;
     sp.finish_and_clear();
@@ -707,6 +699,11 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
         camera,
         crop,
     })
+}
+
+/// The box of `--crop`, if given, for a volume of `dims` ([`parse_crop`]).
+fn crop_of(o: &RenderOpts, dims: [usize; 3]) -> Result<Option<Crop>, Box<dyn Error>> {
+    o.crop.as_deref().map(|s| parse_crop(s, dims)).transpose()
 }
 
 /// `--crop X0:X1,Y0:Y1,Z0:Z1` for a volume of `dims`: three ranges of inclusive voxel

@@ -58,7 +58,7 @@ impl Cut {
         let Cut::Half(axis) = self else {
             return None;
         };
-        let mut hi = dims.map(|n| n.saturating_sub(1));
+        let mut hi = Crop::whole(dims).hi();
         hi[axis.min(2)] /= 2;
         Crop::new([0; 3], hi, dims).ok()
     }
