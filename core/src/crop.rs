@@ -95,19 +95,13 @@ impl Crop {
         slices: core::ops::Range<usize>,
         out: &mut [Voxel],
     ) -> Result<(), Error> {
-        let [nx, ny, nz] = grid.dims;
-        if slices.start > slices.end || slices.end > nz {
-            return Err(Error::BadParameter {
-                reason: "slices lie outside the volume",
-            });
-        }
+        let plane = slice_records(grid, &slices, out.len())?;
         if self.hi.iter().zip(&grid.dims).any(|(h, n)| h >= n) {
             return Err(Error::BadParameter {
                 reason: "crop box: an upper bound lies outside the volume",
             });
         }
-        let plane = nx * ny;
-        need("voxels", slices.len() * plane, out.len())?;
+        let nx = grid.dims[0];
         let clear = |v: &mut [Voxel]| {
             for r in v {
                 *r = Voxel {
@@ -167,6 +161,24 @@ impl Crop {
         }
         Some(Crop { lo, hi })
     }
+}
+
+/// Checks that z slices `slices` lie in a volume of `grid` and that `len` records hold
+/// them; returns the records a slice holds. For the cuts applied to classified slices
+/// ([`Crop::apply`], [`crate::clip::Clip::apply`]).
+pub(crate) fn slice_records(
+    grid: &Grid,
+    slices: &core::ops::Range<usize>,
+    len: usize,
+) -> Result<usize, Error> {
+    let [nx, ny, nz] = grid.dims;
+    if slices.start > slices.end || slices.end > nz {
+        return Err(Error::BadParameter {
+            reason: "slices lie outside the volume",
+        });
+    }
+    need("voxels", slices.len() * nx * ny, len)?;
+    Ok(nx * ny)
 }
 
 #[cfg(test)]

@@ -99,6 +99,7 @@
 )]
 
 pub mod classify;
+pub mod clip;
 pub mod composite;
 pub mod crop;
 pub mod depth;

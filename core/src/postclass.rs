@@ -34,6 +34,7 @@
 //! beyond the edge repeat the outer voxels.
 
 use crate::classify::{ColorTable, Grid, Voxel};
+use crate::clip::Clip;
 use crate::composite::{Intermediate, Rgba};
 use crate::crop::Crop;
 use crate::error::{need, Error};
@@ -117,6 +118,9 @@ pub struct PostSettings<'a> {
     /// Samples outside this box's cells are left out ([`crate::crop`]); `None` keeps
     /// the whole volume.
     pub crop: Option<Crop>,
+    /// Each sample's opacity is scaled by its coverage by these planes
+    /// ([`crate::clip`]), made for this volume; [`Clip::NONE`] keeps every sample.
+    pub clip: Clip,
 }
 
 /// Caller buffers for [`render`].
@@ -341,6 +345,8 @@ pub struct PostFrame<'a> {
     /// The cells samples are taken in along the view's axes (i, j, k), in half voxels
     /// ([`Crop::cells`]): the crop box's, or the whole volume's.
     cells: [(i64, i64); 3],
+    /// The clipping planes, their coefficients in the view's roles (i, j, k).
+    clip: Clip,
 }
 
 /// Validates `settings`, factors the view and fills `tables` for one frame.
@@ -409,6 +415,7 @@ pub fn prepare<'a>(
         ert,
         iso_q8,
         cells: view.permute(cells),
+        clip: settings.clip.permuted(|q| view.permute(q)),
     })
 }
 
@@ -447,6 +454,7 @@ pub fn composite_band(
     let (i_lo, i_hi, j_lo, j_hi) = (i_lo * half, i_hi * half, j_lo * half, j_hi * half);
     // A slice is inside when its cell's centre is: cells in half voxels, slices whole.
     let slice_in = |k: usize| (k_lo..=k_hi).contains(&(2 * k as i64));
+    let (q, unclipped) = (ONE as i64, frame.clip.is_empty());
     let slabs = match frame.mode {
         PostMode::PostClassified => nk,
         _ => nk.saturating_sub(1),
@@ -466,6 +474,7 @@ pub fn composite_band(
         let wf = fixed::bilinear_weights(fu.f, fv.f);
         let wb = fixed::bilinear_weights(bu.f, bv.f);
         let bk = (kf / BRICK).min(nb[2] - 1);
+        let (kf_q, kb_q) = ((kf as i64) << 15, (kb as i64) << 15);
         for v in row0..row0 + rows {
             let jt = v as i64 - fv.n as i64 - 1;
             if jt < -1 || jt >= view.dims[1] as i64 {
@@ -474,6 +483,7 @@ pub fn composite_band(
             let jb = v as i64 - bv.n as i64 - 1;
             let vpos = (v as i64 - fv.n as i64) * ONE as i64 - fv.f as i64;
             let row_in = j_lo <= vpos && vpos <= j_hi;
+            let vpos_b = (v as i64 - bv.n as i64) * q - bv.f as i64;
             let bj = (((jt + 1).max(0) as usize) / BRICK).min(nb[1] - 1);
             let brow = bk * bstride[2] + bj * bstride[1];
             for bi in 0..nb[0] {
@@ -509,13 +519,30 @@ pub fn composite_band(
                         u += 1;
                         continue;
                     }
+                    // Coverage by the clipping planes, where the mode's sample is: the
+                    // slice's sample, the middle of a slab, or (isosurfaces, below)
+                    // the crossing.
+                    let back = [(u as i64 - bu.n as i64) * q - bu.f as i64, vpos_b, kb_q];
+                    let cov = match frame.mode {
+                        _ if unclipped => 1 << 16,
+                        PostMode::PostClassified => frame.clip.coverage([pos, vpos, kf_q], 15),
+                        PostMode::PreIntegrated => {
+                            let mid = [0, 1, 2].map(|a| ([pos, vpos, kf_q][a] + back[a]) / 2);
+                            frame.clip.coverage(mid, 15)
+                        }
+                        PostMode::Isosurface(_) => 1 << 16,
+                    };
+                    if cov == 0 {
+                        u += 1;
+                        continue;
+                    }
                     let f = sample(&vol, frame.shade, il, jt, kf, &wf);
                     let Some(px) = pixels.get_mut(u) else {
                         break;
                     };
                     let (rgb, a) = match frame.mode {
                         PostMode::PostClassified => {
-                            let a = lerp_table(corr, f.s);
+                            let a = ((lerp_table(corr, f.s) as u64 * cov as u64) >> 16) as u32;
                             let c = lerp_color(frame.color, f.s);
                             let rgb = [0, 1, 2]
                                 .map(|ch| (fixed::mul(c[ch], f.d[ch]) + f.sp[ch]).min(ONE));
@@ -531,11 +558,12 @@ pub fn composite_band(
                                 .get(fi * 256 + bi_)
                                 .copied()
                                 .unwrap_or_default();
-                            let a = e[3] as u32;
+                            let part = |x: u16| ((x as u64 * cov as u64) >> 16) as u32;
+                            let a = part(e[3]);
                             let rgb = [0, 1, 2].map(|ch| {
                                 let d = (f.d[ch] + b.d[ch]) / 2;
                                 let s = (f.sp[ch] + b.sp[ch]) / 2;
-                                (fixed::mul(e[ch] as u32, d) + fixed::mul(a, s)).min(a)
+                                (fixed::mul(part(e[ch]), d) + fixed::mul(a, s)).min(a)
                             });
                             (rgb, a)
                         }
@@ -551,6 +579,17 @@ pub fn composite_band(
                             let t = ((iso_q8 as i64 - f.s as i64) * ONE as i64
                                 / (b.s as i64 - f.s as i64))
                                 .clamp(0, ONE as i64) as u32;
+                            // A crossing beyond a plane is cut away whole: the surface
+                            // ends at the plane, which shows what it encloses.
+                            if !unclipped {
+                                let front = [pos, vpos, kf_q];
+                                let at = [0, 1, 2]
+                                    .map(|a| front[a] + (((back[a] - front[a]) * t as i64) >> 15));
+                                if frame.clip.coverage(at, 15) < 1 << 15 {
+                                    u += 1;
+                                    continue;
+                                }
+                            }
                             let c = lerp_color(frame.color, iso_q8);
                             let rgb = [0, 1, 2].map(|ch| {
                                 let d = fixed::mul(f.d[ch], ONE - t) + fixed::mul(b.d[ch], t);

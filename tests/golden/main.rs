@@ -90,62 +90,90 @@ fn threaded_rendering_is_bit_identical_to_single_threaded() {
     }
 }
 
-/// A crop box cuts the picture the reference's box cuts: each crop case is far nearer
-/// the cropped reference than the whole one (so the cut is seen, not lost in the
-/// tolerance), and a box around the whole volume changes no pixel of either path. On a
-/// level of detail the box keeps the level's voxels centred in it: a level-1 frame of
-/// a classified crop case is likewise far nearer the cropped reference than the level's
-/// uncropped frame is.
+/// A crop box cuts the picture the reference's box cuts ([`cut_like_the_reference`]); a
+/// box around the whole volume changes no pixel of either path.
 #[test]
 fn crop_boxes_cut_the_volume_like_the_reference() {
     let mut seen = 0;
     for case in CASES.iter().filter(|c| c.crop.is_some()) {
         let raw = cases::load(case.vol);
-        let ours = cases::render_ours(case, &raw);
+        let d = raw.dims;
         let whole = cases::Case {
             crop: None,
             ..*case
         };
-        let cropped_ref = metrics::psnr_rgb8(&ours, &cases::render_ref(case, &raw));
-        let whole_ref = metrics::psnr_rgb8(&ours, &cases::render_ref(&whole, &raw));
-        println!(
-            "{}: {cropped_ref:.2} dB against the cropped reference, {whole_ref:.2} dB \
-             against the whole one",
-            case.name
-        );
-        assert!(
-            cropped_ref > whole_ref + 8.0,
-            "{}: {cropped_ref:.2} dB cropped against {whole_ref:.2} dB whole",
-            case.name
-        );
-        let d = raw.dims;
         let every = cases::Case {
             crop: Some(([0; 3], [d[0] - 1, d[1] - 1, d[2] - 1])),
             ..*case
         };
-        assert!(
-            cases::render_ours(&every, &raw) == cases::render_ours(&whole, &raw),
-            "{}: a box around the whole volume changed the image",
-            case.name
-        );
-        if case.post.is_none() {
-            let level = cases::render_level(case, &raw, 1);
-            let level_whole = cases::render_level(&whole, &raw, 1);
-            let near = metrics::psnr_rgb8(&level, &cases::render_ref(case, &raw));
-            let far = metrics::psnr_rgb8(&level_whole, &cases::render_ref(case, &raw));
-            println!(
-                "{} at level 1: {near:.2} dB, uncropped {far:.2} dB",
-                case.name
-            );
-            assert!(
-                near > far + 5.0,
-                "{}: level 1 {near:.2} against {far:.2} dB",
-                case.name
-            );
-        }
+        cut_like_the_reference(case, &whole, &every, &raw);
         seen += 1;
     }
     assert!(seen >= 2);
+}
+
+/// Clipping planes cut the picture the reference's planes cut
+/// ([`cut_like_the_reference`]), the reference's with a hard cut and ours with opacity
+/// faded over the voxel each plane crosses; planes beyond the volume change no pixel.
+#[test]
+fn clipping_planes_cut_the_volume_like_the_reference() {
+    const BEYOND: &[([f64; 3], f64)] = &[([1.0, 0.5, 0.8], 1e3), ([0.0, -1.0, 0.0], 1e3)];
+    let mut seen = 0;
+    for case in CASES.iter().filter(|c| !c.clip.is_empty()) {
+        let raw = cases::load(case.vol);
+        let whole = cases::Case { clip: &[], ..*case };
+        let beyond = cases::Case {
+            clip: BEYOND,
+            ..*case
+        };
+        cut_like_the_reference(case, &whole, &beyond, &raw);
+        seen += 1;
+    }
+    assert!(seen >= 3);
+}
+
+/// `case` cuts the volume as the reference does: it is far nearer the reference with
+/// the cut than without (so the cut is seen, not lost in the tolerance), and `keeps_all`
+/// (a cut that leaves every voxel) renders exactly as `uncut` does. On a level of detail
+/// a classified cut keeps its place: the level-1 frame is likewise far nearer the cut
+/// reference than the level's uncut frame is.
+fn cut_like_the_reference(
+    case: &cases::Case,
+    uncut: &cases::Case,
+    keeps_all: &cases::Case,
+    raw: &shearwarp_file::volume::RawVolume,
+) {
+    let ours = cases::render_ours(case, raw);
+    let reference = cases::render_ref(case, raw);
+    let cut_ref = metrics::psnr_rgb8(&ours, &reference);
+    let whole_ref = metrics::psnr_rgb8(&ours, &cases::render_ref(uncut, raw));
+    println!(
+        "{}: {cut_ref:.2} dB against the cut reference, {whole_ref:.2} dB against the \
+         whole one",
+        case.name
+    );
+    assert!(
+        cut_ref > whole_ref + 8.0,
+        "{}: {cut_ref:.2} dB cut against {whole_ref:.2} dB whole",
+        case.name
+    );
+    assert!(
+        cases::render_ours(keeps_all, raw) == cases::render_ours(uncut, raw),
+        "{}: a cut that keeps every voxel changed the image",
+        case.name
+    );
+    if case.post.is_none() {
+        let level = cases::render_level(case, raw, 1);
+        let level_whole = cases::render_level(uncut, raw, 1);
+        let near = metrics::psnr_rgb8(&level, &reference);
+        let far = metrics::psnr_rgb8(&level_whole, &reference);
+        println!("{} at level 1: {near:.2} dB, uncut {far:.2} dB", case.name);
+        assert!(
+            near > far + 5.0,
+            "{}: level 1 {near:.2} against {far:.2} dB",
+            case.name
+        );
+    }
 }
 
 #[test]
@@ -204,6 +232,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
         gradient: None,
         min_opacity: 0.0,
         crop: None,
+        clip: shearwarp_core::clip::Clip::NONE,
     };
     let enc = scene::encode(&raw, &class).unwrap();
     let look = Look {
@@ -248,6 +277,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
             shadows: false,
             fov: None,
             crop: None,
+            clip: Vec::new(),
         };
         let rimg = reference::render_reference(&vol, &tf, None, RefMode::Composite, &view);
         let theirs: f64 = rimg.iter().map(|p| p[0]).sum::<f64>() / rimg.len() as f64;

@@ -4,6 +4,7 @@
 use crate::metrics;
 use crate::reference::{self, RefMode, RefShading, RefTf, RefView, RefVolume};
 use crate::synth;
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::Mode;
 use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
@@ -66,6 +67,8 @@ pub struct Case {
     pub fov: Option<f64>,
     /// Crop box `(lo, hi)`, inclusive voxel indices of the volume.
     pub crop: Option<([usize; 3], [usize; 3])>,
+    /// Clipping planes `(normal, distance)` as [`RefView::clip`] takes them.
+    pub clip: &'static [([f64; 3], f64)],
 }
 
 /// The lighting a case uses.
@@ -126,6 +129,7 @@ macro_rules! case {
             supersample: 1,
             fov: None,
             crop: None,
+            clip: &[],
         }
     };
 }
@@ -143,6 +147,23 @@ const HEAD_CUT: Case = Case {
         Mode::Composite,
         -30.0,
         -60.0,
+        25.0
+    )
+};
+
+/// The Colin27 head at 64³ cut by an oblique plane through its centre, the cut face
+/// turned toward the viewer; its variants in [`CASES`] change the path or the planes.
+const HEAD_CLIP: Case = Case {
+    clip: &[([1.0, 0.5, 0.8], 0.0)],
+    ..case!(
+        "head64_clip_oblique",
+        Vol::Fixture("mr_head_colin27_64.json"),
+        HEAD_OPACITY,
+        HEAD_COLOR,
+        true,
+        Mode::Composite,
+        -30.0,
+        -35.0,
         25.0
     )
 };
@@ -412,6 +433,26 @@ pub const CASES: &[Case] = &[
         name: "head64_crop_cut_post",
         post: Some(PostMode::PostClassified),
         ..HEAD_CUT
+    },
+    // The head cut by an oblique plane: classified (the plane's coverage baked into the
+    // voxels' opacity), post-classified and as an isosurface (per sample), and a slab
+    // 12 mm thick between two parallel planes, in perspective.
+    HEAD_CLIP,
+    Case {
+        name: "head64_clip_oblique_post",
+        post: Some(PostMode::PostClassified),
+        ..HEAD_CLIP
+    },
+    Case {
+        name: "head64_clip_oblique_iso",
+        post: Some(PostMode::Isosurface(60.0)),
+        ..HEAD_CLIP
+    },
+    Case {
+        name: "head64_clip_slab_persp45",
+        clip: &[([1.0, 0.5, 0.8], 6.0), ([-1.0, -0.5, -0.8], 6.0)],
+        fov: Some(45.0),
+        ..HEAD_CLIP
     },
     Case {
         post: Some(PostMode::PostClassified),
@@ -719,15 +760,18 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         };
         let cam = camera(case);
         let mut r = shearwarp_file::post::PostRenderer::with_threads(&vol, threads);
-        let crop = case
-            .crop
-            .map(|(lo, hi)| Crop::new(lo, hi, raw.dims).expect("crop"));
+        let cut = shearwarp_file::post::Cut {
+            crop: case
+                .crop
+                .map(|(lo, hi)| Crop::new(lo, hi, raw.dims).expect("crop")),
+            clip: clip(case, raw.dims, raw.spacing),
+        };
         let frame = r
-            .render(&vol, mode, case.opacity, &look, &cam, crop)
+            .render(&vol, mode, case.opacity, &look, &cam, cut)
             .expect("render");
         return frame.iter().map(|p| [p[0], p[1], p[2]]).collect();
     }
-    let enc = scene::encode(raw, &classification(case, raw.dims)).expect("encode");
+    let enc = scene::encode(raw, &classification(case, raw.dims, raw.spacing)).expect("encode");
     render_encoded(case, &enc, threads, Isa::detect())
 }
 
@@ -737,7 +781,7 @@ pub fn render_ours_isa(case: &Case, raw: &RawVolume, isa: Isa) -> Option<Vec<[u8
     if case.post.is_some() {
         return None;
     }
-    let enc = scene::encode(raw, &classification(case, raw.dims)).expect("encode");
+    let enc = scene::encode(raw, &classification(case, raw.dims, raw.spacing)).expect("encode");
     Some(render_encoded(case, &enc, 1, isa))
 }
 
@@ -751,9 +795,9 @@ fn camera(case: &Case) -> Camera {
     }
 }
 
-/// The classification of a case's transfer function and crop box, for a volume of
-/// `dims`.
-fn classification(case: &Case, dims: [usize; 3]) -> Classification {
+/// The classification of a case's transfer function, crop box and clipping planes, for
+/// a volume of `dims` voxels spaced `spacing` apart.
+fn classification(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Classification {
     Classification {
         opacity: case.opacity.to_vec(),
         gradient: None,
@@ -761,7 +805,17 @@ fn classification(case: &Case, dims: [usize; 3]) -> Classification {
         crop: case
             .crop
             .map(|(lo, hi)| Crop::new(lo, hi, dims).expect("crop")),
+        clip: clip(case, dims, spacing),
     }
+}
+
+/// A case's clipping planes for a grid of `dims` and `spacing` (the volume, or a level
+/// of it: the planes are placed about the centre both share).
+fn clip(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Clip {
+    let grid = shearwarp_core::classify::Grid::new(dims, spacing).expect("grid");
+    case.clip.iter().fold(Clip::NONE, |c, &(n, d)| {
+        c.with_plane(&grid, n, d).expect("clipping plane")
+    })
 }
 
 /// Renders a classic (RLE) case from an encoded volume with `threads` threads.
@@ -789,11 +843,12 @@ fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize, isa: Isa) -
 pub fn render_level(case: &Case, raw: &RawVolume, level: usize) -> Vec<[u8; 3]> {
     let (lod, _) = scene::lod(raw, level).expect("level");
     let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing).expect("grid");
-    let mut class = classification(case, raw.dims);
+    let mut class = classification(case, raw.dims, raw.spacing);
     class.crop = class.crop.map(|c| {
         c.at_level(raw.dims, lod.dims, 1 << level)
             .expect("crop at the level")
     });
+    class.clip = clip(case, lod.dims, lod.spacing);
     let enc = scene::encode(&lod, &class).expect("encode").as_level(&full);
     render_encoded(case, &enc, 1, Isa::detect())
 }
@@ -835,6 +890,7 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         shadows: case.shadows,
         fov: case.fov,
         crop: case.crop,
+        clip: case.clip.to_vec(),
     };
     let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
     metrics::to_rgb8(&img)

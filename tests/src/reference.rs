@@ -59,6 +59,11 @@ pub struct RefView {
     /// Crop box `(lo, hi)`, inclusive voxel indices: samples outside its cells
     /// (`[lo − ½, hi + ½]` in index space) are left out, of the rays and of the shadows.
     pub crop: Option<([usize; 3], [usize; 3])>,
+    /// Clipping planes `(normal, distance)`: the normal in physical x, y, z, pointing
+    /// into the part cut away, the plane at `distance` (physical units) from the
+    /// volume's centre along it. Each ray's span ends exactly at the planes (a hard
+    /// cut); the shadow march takes no opacity beyond them.
+    pub clip: Vec<([f64; 3], f64)>,
 }
 
 impl RefVolume {
@@ -237,6 +242,8 @@ struct Ctx<'a> {
     /// The index-space box samples are taken in, per axis: the volume's cells
     /// `[−½, n − ½]`, or the crop box's.
     bounds: [[f64; 2]; 3],
+    /// Clipping planes in index space: `(a, b)` with the kept side `a·p ≤ b`.
+    planes: Vec<([f64; 3], f64)>,
 }
 
 impl Ctx<'_> {
@@ -262,6 +269,9 @@ impl Ctx<'_> {
             if (0..3).any(|a| p[a] < 0.0 || p[a] > (d[a] - 1) as f64 || outside(a)) {
                 return t;
             }
+            if self.clipped(p) {
+                continue;
+            }
             let v = self.scalar(&cell(d, p));
             let a = lookup(&self.opacity, v)[0].clamp(0.0, 1.0);
             if a > 0.0 {
@@ -286,6 +296,11 @@ impl Ctx<'_> {
                     .sum()
             }
         }
+    }
+
+    /// Whether index-space point `p` lies beyond a clipping plane.
+    fn clipped(&self, p: [f64; 3]) -> bool {
+        self.planes.iter().any(|&(a, b)| dot(a, p) > b)
     }
 
     fn to_index(&self, p: [f64; 3]) -> [f64; 3] {
@@ -317,6 +332,19 @@ impl Ctx<'_> {
                 let tb = (hi - a) / b;
                 t0 = t0.max(ta.min(tb));
                 t1 = t1.min(ta.max(tb));
+            }
+        }
+        // Each plane `a·(origin + t·dir) ≤ b` bounds t on one side.
+        for &(a, b) in &self.planes {
+            let (at, slope) = (dot(a, origin), dot(a, dir_idx));
+            if slope.abs() < 1e-12 {
+                if at > b + EPS {
+                    return None;
+                }
+            } else if slope > 0.0 {
+                t1 = t1.min((b - at) / slope);
+            } else {
+                t0 = t0.max((b - at) / slope);
             }
         }
         (t0 <= t1 + EPS && t0.is_finite() && t1.is_finite()).then_some((t0, t1.max(t0)))
@@ -561,6 +589,17 @@ pub fn render_reference(
             Some((lo, hi)) => [lo[a] as f64 - 0.5, hi[a] as f64 + 0.5],
             None => [-0.5, vol.dims[a] as f64 - 0.5],
         }),
+        // n̂·((p − c)⊙s) ≤ d, with c the centre voxel, as `a·p ≤ b`.
+        planes: view
+            .clip
+            .iter()
+            .map(|&(n, dist)| {
+                let n = normalize(n);
+                let a: [f64; 3] = std::array::from_fn(|i| n[i] * s[i]);
+                let c: [f64; 3] = std::array::from_fn(|i| (vol.dims[i] as f64 - 1.0) / 2.0);
+                (a, dist + dot(a, c))
+            })
+            .collect(),
         perspective: view.fov.map(|fov| {
             let half = fov.to_radians() / 2.0;
             (0.5 * diag / half.sin(), 0.5 * w.min(h) as f64 / half.tan())
@@ -642,6 +681,7 @@ mod tests {
             shadows: false,
             fov: None,
             crop: None,
+            clip: Vec::new(),
         }
     }
 

@@ -309,6 +309,7 @@ fn reference_image(
             shadows: false,
             fov: None,
             crop: None,
+            clip: Vec::new(),
         },
     );
     let img = metrics::to_rgb8(&img);

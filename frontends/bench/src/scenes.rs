@@ -83,6 +83,7 @@ impl Appearance {
             gradient: None,
             min_opacity: self.min_opacity,
             crop: None,
+            clip: shearwarp_core::clip::Clip::NONE,
         }
     }
 

@@ -1,6 +1,7 @@
 //! `shearwarp`: render volumes to PNG and benchmark the renderer.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{FlatVoxels, Mode};
 use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
@@ -274,6 +275,14 @@ struct RenderOpts {
     /// per frame.
     #[arg(long, value_name = "X0:X1,Y0:Y1,Z0:Z1")]
     crop: Option<String>,
+    /// Clipping plane NX,NY,NZ[:OFFSET], repeatable up to 6 times: cuts away the part
+    /// of the volume its normal (in the volume's x, y, z as stored, physical units)
+    /// points into. OFFSET moves the plane from the volume's centre along the normal,
+    /// as a fraction of the volume's half-extent that way: 0 (the default) halves the
+    /// volume, 1 keeps all of it, -1 none. Classified modes bake the planes into the
+    /// encoding; post/preint/iso apply them per frame.
+    #[arg(long, value_name = "NX,NY,NZ[:OFFSET]", allow_hyphen_values = true)]
+    clip: Vec<String>,
 }
 
 /// A bad command-line value or option combination (exit code 2).
@@ -412,11 +421,12 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             || o.tf.is_some()
             || o.window.is_some()
             || o.crop.is_some()
+            || !o.clip.is_empty()
             || o.lod > 0
         {
             return Err(usage(format!(
                 "{}: opacity is baked into a .swv file; re-encode it with `shearwarp encode` \
-                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16/--crop \
+                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16/--crop/--clip \
                  (or to render a --lod level)",
                 path.display()
             )));
@@ -437,11 +447,13 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         let (raw, tf) = load_with_tf(path, o, out)?;
         let sp = out.spinner(format!("classifying and encoding {name}"));
         let crop = crop_of(o, raw.dims)?;
+        let planes = clip_planes(o, raw.dims, raw.spacing)?;
         let mut class = Classification {
             opacity: tf.opacity.clone(),
             gradient: tf.gradient.clone(),
             min_opacity: o.min_opacity,
             crop,
+            clip: clip_for(&planes, raw.dims, raw.spacing)?,
         };
         let enc = if o.lod > 0 {
             if o.lod > 8 {
@@ -456,6 +468,8 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
                     usage(format!("--crop '{s}': holds no voxel of --lod {}", o.lod))
                 })?);
             }
+            // The planes keep their place about the centre, which the level shares.
+            class.clip = clip_for(&planes, level.dims, level.spacing)?;
             scene::encode(&level, &class)?.as_level(&full)
         } else {
             scene::encode(&raw, &class)?
@@ -651,7 +665,7 @@ struct Dense {
     opacity: Vec<(f64, f64)>,
     look: Look,
     camera: Camera,
-    crop: Option<Crop>,
+    cut: post::Cut,
 }
 
 fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn Error>> {
@@ -669,7 +683,14 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let camera = camera_of(o)?;
     let threads = thread_count(o)?;
     let (raw, tf) = load_with_tf(path, o, out)?;
-    let crop = crop_of(o, raw.dims)?;
+    let cut = post::Cut {
+        crop: crop_of(o, raw.dims)?,
+        clip: clip_for(
+            &clip_planes(o, raw.dims, raw.spacing)?,
+            raw.dims,
+            raw.spacing,
+        )?,
+    };
     let sp = out.spinner("quantising and computing normals".into());
     let vol = post::DenseVolume::new(&raw)?;
     sp.finish_and_clear();
@@ -697,7 +718,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
         opacity: tf.opacity,
         look,
         camera,
-        crop,
+        cut,
     })
 }
 
@@ -746,6 +767,87 @@ fn parse_crop(s: &str, dims: [usize; 3]) -> Result<Crop, Box<dyn Error>> {
         }
     }
     Ok(Crop::new(lo, hi, dims)?)
+}
+
+/// A clipping plane as [`Clip::with_plane`] takes it: normal, and signed distance from
+/// the volume's centre in physical units.
+type PlaneSpec = ([f64; 3], f64);
+
+/// The planes of `--clip`, for a volume of `dims` voxels spaced `spacing` apart: each
+/// as its normal and its signed distance from the volume's centre (physical units), as
+/// [`Clip::with_plane`] takes them ([`parse_clip`]).
+fn clip_planes(
+    o: &RenderOpts,
+    dims: [usize; 3],
+    spacing: [f64; 3],
+) -> Result<Vec<PlaneSpec>, Box<dyn Error>> {
+    if o.clip.len() > shearwarp_core::clip::MAX_PLANES {
+        return Err(usage(format!(
+            "--clip: at most {} planes",
+            shearwarp_core::clip::MAX_PLANES
+        )));
+    }
+    o.clip
+        .iter()
+        .map(|s| {
+            let (n, offset) = parse_clip(s)?;
+            // Half the volume's extent along the normal: its cells, `dims·spacing`.
+            let len = n.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let half: f64 = (0..3)
+                .map(|a| (n[a] / len).abs() * dims[a] as f64 * spacing[a] / 2.0)
+                .sum();
+            Ok((n, offset * half))
+        })
+        .collect()
+}
+
+/// The clip of `planes` ([`clip_planes`]) for a grid of `dims` and `spacing`: the
+/// volume's own, or a level of it (which has the same centre).
+fn clip_for(
+    planes: &[PlaneSpec],
+    dims: [usize; 3],
+    spacing: [f64; 3],
+) -> Result<Clip, Box<dyn Error>> {
+    if planes.is_empty() {
+        return Ok(Clip::NONE);
+    }
+    let grid = shearwarp_core::classify::Grid::new(dims, spacing)?;
+    let mut clip = Clip::NONE;
+    for &(n, d) in planes {
+        clip = clip.with_plane(&grid, n, d)?;
+    }
+    Ok(clip)
+}
+
+/// One `--clip NX,NY,NZ[:OFFSET]`: the normal, and the offset (−1..=1, default 0).
+fn parse_clip(s: &str) -> Result<([f64; 3], f64), Box<dyn Error>> {
+    let bad = |why: String| usage(format!("--clip '{s}': {why}"));
+    let (normal, offset) = match s.split_once(':') {
+        Some((n, f)) => (n, Some(f)),
+        None => (s, None),
+    };
+    let num = |t: &str| -> Result<f64, Box<dyn Error>> {
+        t.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| bad(format!("'{}' is not a number", t.trim())))
+    };
+    let parts: Vec<&str> = normal.split(',').collect();
+    let [x, y, z] = parts[..] else {
+        return Err(bad(
+            "expected a normal NX,NY,NZ and an optional :OFFSET".into()
+        ));
+    };
+    let n = [num(x)?, num(y)?, num(z)?];
+    if n.iter().all(|&v| v == 0.0) {
+        return Err(bad("the normal is zero".into()));
+    }
+    let offset = offset.map(num).transpose()?.unwrap_or(0.0);
+    if !(-1.0..=1.0).contains(&offset) {
+        return Err(bad(format!("offset {offset} is outside -1..=1")));
+    }
+    Ok((n, offset))
 }
 
 fn parse_depth_cue(s: &str) -> Result<DepthCue, Box<dyn Error>> {
@@ -922,7 +1024,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                     out,
                     |cam| {
                         Ok(d.renderer
-                            .render(&d.vol, d.mode, &d.opacity, &d.look, cam, d.crop)?)
+                            .render(&d.vol, d.mode, &d.opacity, &d.look, cam, d.cut)?)
                     },
                     |_| Err(usage("--png16 works with --mode composite or mip")),
                 )?;
@@ -997,7 +1099,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 let t = Instant::now();
                 let frame = d
                     .renderer
-                    .render(&d.vol, d.mode, &op, &d.look, cam, d.crop)?;
+                    .render(&d.vol, d.mode, &op, &d.look, cam, d.cut)?;
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 std::hint::black_box(frame);
                 Ok(ms)

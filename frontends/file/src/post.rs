@@ -4,6 +4,7 @@
 use crate::scene::{opacity_points, Look};
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{self, Grid, OpacityTf, Scalars, Voxel};
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{Intermediate, Rgba};
 use shearwarp_core::crop::Crop;
 use shearwarp_core::opaque;
@@ -58,6 +59,16 @@ impl DenseVolume {
     }
 }
 
+/// What a frame leaves out of a [`DenseVolume`]: samples outside a crop box's cells,
+/// and samples faded by their coverage by clipping planes, both made for the volume.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Cut {
+    /// The box ([`shearwarp_core::crop`]), or `None` for the whole volume.
+    pub crop: Option<Crop>,
+    /// The planes ([`shearwarp_core::clip`]).
+    pub clip: Clip,
+}
+
 /// Workspace and tables for rendering a [`DenseVolume`], on one thread or several.
 ///
 /// With several threads the intermediate image is cut into bands of [`BAND_ROWS`]
@@ -109,7 +120,7 @@ impl PostRenderer {
     }
 
     /// Renders one frame; `opacity` is the opacity transfer function over raw values,
-    /// and samples outside `crop`'s cells are left out.
+    /// and `cut` what is cut away of the volume.
     pub fn render(
         &mut self,
         vol: &DenseVolume,
@@ -117,7 +128,7 @@ impl PostRenderer {
         opacity: &[(f64, f64)],
         look: &Look,
         camera: &Camera,
-        crop: Option<Crop>,
+        cut: Cut,
     ) -> Result<Vec<[u8; 4]>, Error> {
         let pts = opacity_points(opacity);
         let op = OpacityTf::new(&pts)?.build_quantized(vol.range);
@@ -128,7 +139,8 @@ impl PostRenderer {
             color: &look.color,
             lighting: look.lighting.as_ref(),
             ert_threshold: look.ert_threshold,
-            crop,
+            crop: cut.crop,
+            clip: cut.clip,
         };
         if self.threads == 1 {
             if self.out_row.len() < camera.width {

@@ -775,6 +775,7 @@ mod tests {
             gradient: None,
             min_opacity: 0.02,
             crop: None,
+            clip: shearwarp_core::clip::Clip::NONE,
         };
         let enc = encode(&raw, &class).unwrap();
         let look = Look {

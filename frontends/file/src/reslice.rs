@@ -12,6 +12,7 @@
 use crate::bigbuf;
 use crate::scene::{transpose, AxisArrays, Strided};
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
+use shearwarp_core::clip::Clip;
 use shearwarp_core::crop::Crop;
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::Error;
@@ -28,6 +29,8 @@ pub struct Classifier<'a> {
     pub threshold: u8,
     /// Voxels outside this box are made transparent as they are classified.
     pub crop: Option<Crop>,
+    /// Voxels are faded by their coverage by these planes as they are classified.
+    pub clip: Clip,
 }
 
 /// Slices classified at a time, which stay in the cache between the classifier writing
@@ -90,6 +93,7 @@ fn encode_z_part(c: &Classifier<'_>, zs: core::ops::Range<usize>) -> Result<Axis
         if let Some(crop) = &c.crop {
             crop.apply(c.grid, z0..z1, d)?;
         }
+        c.clip.apply(c.grid, z0..z1, d)?;
         // The slab as a volume of its own: the encoder reads only its dimensions and
         // layout.
         let slab = Grid::new([nx, ny, z1 - z0], c.grid.spacing)?.with_layout(c.grid.layout());
@@ -315,6 +319,7 @@ mod tests {
         if let Some(crop) = &c.crop {
             crop.apply(c.grid, 0..c.grid.dims[2], &mut dense).unwrap();
         }
+        c.clip.apply(c.grid, 0..c.grid.dims[2], &mut dense).unwrap();
         Axis::ALL.map(|axis| {
             let sz = rle::measure(&dense, c.grid, axis, c.threshold).unwrap();
             let mut a = (
@@ -387,13 +392,18 @@ mod tests {
                 dims.map(|n| (3 * n / 4).min(n - 1)),
                 dims,
             );
+            // An oblique plane through the centre, and one more with the box.
+            let oblique = Clip::NONE.with_plane(&grid, [1.0, -2.0, 0.5], 0.0).unwrap();
+            let slab = oblique.with_plane(&grid, [0.0, 0.3, -1.0], 1.0).unwrap();
             let cases = [
-                (None, 0, None),
-                (None, 30, None),
-                (Some(&grad), 12, None),
-                (None, 0, Some(middle.unwrap())),
+                (None, 0, None, Clip::NONE),
+                (None, 30, None, Clip::NONE),
+                (Some(&grad), 12, None, Clip::NONE),
+                (None, 0, Some(middle.unwrap()), Clip::NONE),
+                (None, 0, None, oblique),
+                (Some(&grad), 12, Some(middle.unwrap()), slab),
             ];
-            for (gradient_table, threshold, crop) in cases {
+            for (gradient_table, threshold, crop, clip) in cases {
                 let c = Classifier {
                     grid: &grid,
                     scalars: Scalars::U8(&data),
@@ -401,6 +411,7 @@ mod tests {
                     gradient_table,
                     threshold,
                     crop,
+                    clip,
                 };
                 for bits in 0..8 {
                     let g = grid.with_layout(Layout::from_bits(bits).unwrap());

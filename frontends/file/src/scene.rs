@@ -5,6 +5,7 @@ use crate::bigbuf;
 use crate::reslice;
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel};
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{FlatVoxels, Mode};
 use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
@@ -25,6 +26,10 @@ pub struct Classification {
     /// Voxels outside this box (of the volume classified) are stored as transparent
     /// ([`shearwarp_core::crop`]).
     pub crop: Option<Crop>,
+    /// Voxels are faded by their coverage by these planes (made for the volume
+    /// classified), and stored as transparent where none is left
+    /// ([`shearwarp_core::clip`]).
+    pub clip: Clip,
 }
 
 /// How frames take voxels with a zero gradient (`--flat-voxels` of the CLI and the
@@ -121,6 +126,7 @@ pub fn encode_threads(
         gradient_table: gtable.as_ref(),
         threshold,
         crop: class.crop,
+        clip: class.clip,
     };
     let [x, y, z] = reslice::encode_all(&classifier, threads)?;
     let runs = [x.0, y.0, z.0];

@@ -69,6 +69,7 @@ fn render(v: &RawVolume) -> Vec<[u8; 4]> {
         gradient: None,
         min_opacity: 0.02,
         crop: None,
+        clip: shearwarp_core::clip::Clip::NONE,
     };
     let enc = scene::encode(v, &class).unwrap();
     let look = Look {

@@ -81,6 +81,9 @@ impl Classifier {
         if let Some(crop) = &class.crop {
             crop.apply(&self.grid, 0..self.grid.dims[2], &mut dense)?;
         }
+        class
+            .clip
+            .apply(&self.grid, 0..self.grid.dims[2], &mut dense)?;
         Ok(dense)
     }
 
@@ -200,6 +203,7 @@ fn same(a: &Classification, b: &Classification) -> bool {
         && a.min_opacity == b.min_opacity
         && a.gradient == b.gradient
         && a.crop == b.crop
+        && a.clip == b.clip
 }
 
 impl LevelRle {
@@ -341,6 +345,7 @@ mod tests {
                     gradient: None,
                     min_opacity: [0.02, 0.0, 0.5, 0.0, 0.02][k],
                     crop: if k == 4 { half } else { None },
+                    clip: shearwarp_core::clip::Clip::NONE,
                 };
                 let mine = c.encode(&class).unwrap();
                 let mut theirs = scene::encode(&raw, &class).unwrap();
@@ -406,6 +411,7 @@ mod tests {
             gradient: None,
             min_opacity: 0.02,
             crop: None,
+            clip: shearwarp_core::clip::Clip::NONE,
         };
         let (a, b) = (class(40.0), class(90.0));
         let mut level = c.encode(&a).unwrap();
@@ -467,6 +473,7 @@ mod tests {
             gradient: Some(vec![(0.0, 1.0)]),
             min_opacity: 0.0,
             crop: None,
+            clip: shearwarp_core::clip::Clip::NONE,
         };
         assert!(c.encode(&class).is_err());
         class.gradient = None;

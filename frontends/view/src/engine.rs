@@ -138,6 +138,7 @@ impl Scene {
             gradient: None,
             min_opacity: self.settings.min_opacity,
             crop,
+            clip: shearwarp_core::clip::Clip::NONE,
         }
     }
 

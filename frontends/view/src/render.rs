@@ -218,6 +218,7 @@ mod tests {
             gradient: None,
             min_opacity: 0.02,
             crop: None,
+            clip: shearwarp_core::clip::Clip::NONE,
         }
     }
 

@@ -6,7 +6,7 @@
 //!
 //! The renderer firmware (`src/main.rs`) covers what a device runs: the `.swv` stream,
 //! compositing and the warp. This adds classification, gradients and normals, run-length
-//! encoding, crop boxes, the `.swv` writer, post-classified, pre-integrated and
+//! encoding, crop boxes, clipping planes, the `.swv` writer, post-classified, pre-integrated and
 //! isosurface rendering, the level-of-detail pyramid, perspective and supersampled
 //! frames.
 #![no_std]
@@ -17,6 +17,7 @@ use cortex_m_rt::entry;
 use shearwarp_core::classify::{
     self, ColorTable, ColorTf, GradientTf, Grid, OpacityTf, Scalars, Voxel,
 };
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::Intermediate;
 use shearwarp_core::composite::{Mode, Rgba};
 use shearwarp_core::crop::Crop;
@@ -126,6 +127,9 @@ fn run() -> Result<(), Error> {
     crop.apply(&grid, black_box(0..0), some(&mut dense))?;
     black_box(crop.at_level(grid.dims, black_box([1, 1, 1]), black_box(2)));
     black_box(crop.contains(black_box([0, 0, 0])));
+    // Clipping planes over the same records.
+    let clip = Clip::NONE.with_plane(&grid, black_box([1.0, 0.5, 0.0]), black_box(0.5))?;
+    clip.apply(&grid, black_box(0..0), some(&mut dense))?;
     black_box(normal::decode(normal::encode(
         black_box(1),
         black_box(2),
@@ -285,6 +289,7 @@ fn run() -> Result<(), Error> {
         lighting: black_box(true).then_some(&light),
         ert_threshold: black_box(0.95),
         crop: black_box(Some(crop)),
+        clip: black_box(clip),
     };
     let mut pws = PostWorkspace {
         pixels: some(&mut pixels),

@@ -1,0 +1,312 @@
+//! Clipping planes: up to six half-spaces, in any orientation, outside which the volume
+//! is left out.
+//!
+//! A crop box ([`crate::crop`]) cuts along the volume's axes; a plane cuts along the
+//! anatomy (an oblique cut through the skull, a slab along an organ's axis). Lacroute
+//! sketches clipping planes for shear-warp and leaves them unbuilt (1995, §7.5); he
+//! also notes that a hard cut aliases, and asks for opacity to fall off over about a
+//! voxel at the plane. That is what this module does, in integers:
+//! - a plane is kept as the signed distance from it, in units of the grid's smallest
+//!   spacing, as an affine function of the voxel index (`σ(p) = q·p − r`, Q16);
+//! - a point's *coverage* is `clamp(½ − σ, 0, 1)`: 1 a half voxel inside, 0 a half
+//!   voxel outside, and the smallest over the planes;
+//! - classified volumes scale each voxel's opacity by its coverage as they are
+//!   classified ([`Clip::apply`]), so the voxels beyond the plane become transparent and
+//!   the run-length encoding drops them (a clipped frame costs less, never more), and
+//!   the voxels the plane crosses fade with the part of their cell it leaves. The cut
+//!   face is then a plane to within the bilinear samples' resolution, not a staircase of
+//!   voxels;
+//! - unclassified volumes scale each sample's opacity by the coverage at the sample
+//!   ([`Clip::coverage`]), per frame, so moving a plane costs nothing there.
+//!
+//! Planes are given in physical space, relative to the volume's centre, so one plane
+//! means the same cut on every level of detail of a volume ([`crate::lod`] keeps the
+//! centre and scales the spacing).
+
+use crate::classify::{Grid, Voxel};
+use crate::error::Error;
+
+/// Most planes a [`Clip`] holds: six, enough for any convex cut a box can make.
+pub const MAX_PLANES: usize = 6;
+
+/// Q16 fixed point: 1.0.
+const Q16: i64 = 1 << 16;
+
+/// Largest ratio between a grid's largest and smallest spacing a plane accepts, so that
+/// the Q16 coefficients stay far inside `i64` (`4096` voxels × `2^16` × `2^16`).
+const MAX_ANISOTROPY: f64 = 65536.0;
+
+/// One half-space: signed distance `σ(p) = q·p / 2^frac − r` (Q16, units of the
+/// grid's smallest spacing) at index-space position `p`; kept where `σ ≤ 0`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Plane {
+    q: [i64; 3],
+    r: i64,
+}
+
+/// Up to [`MAX_PLANES`] clipping planes for one grid (a volume, or a level of one).
+/// [`Clip::NONE`] keeps everything.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Clip {
+    planes: [Plane; MAX_PLANES],
+    len: usize,
+}
+
+impl Default for Clip {
+    fn default() -> Self {
+        Clip::NONE
+    }
+}
+
+impl Clip {
+    /// No planes: every voxel kept.
+    pub const NONE: Clip = Clip {
+        planes: [Plane { q: [0; 3], r: 0 }; MAX_PLANES],
+        len: 0,
+    };
+
+    /// This clip and one more plane, for a volume of `grid`: the plane at signed
+    /// distance `distance` (physical units, as the spacing) from the volume's centre
+    /// along `normal` (physical x, y, z; any length but zero), which points into the
+    /// part cut away. Distance 0 halves the volume; a distance beyond the volume's
+    /// extent keeps all of it (or none, negated).
+    pub fn with_plane(self, grid: &Grid, normal: [f64; 3], distance: f64) -> Result<Clip, Error> {
+        let bad = |reason| Err(Error::BadParameter { reason });
+        if self.len >= MAX_PLANES {
+            return bad("clip: more than six planes");
+        }
+        let len = libm::sqrt(normal.iter().map(|n| n * n).sum::<f64>());
+        if !(len.is_finite() && len > 1e-12) {
+            return bad("clip: a plane's normal is zero or not finite");
+        }
+        if !distance.is_finite() {
+            return bad("clip: a plane's distance is not finite");
+        }
+        let s = grid.spacing;
+        let smin = s[0].min(s[1]).min(s[2]);
+        if s[0].max(s[1]).max(s[2]) / smin > MAX_ANISOTROPY {
+            return bad("clip: voxel spacing too anisotropic for a clipping plane");
+        }
+        // σ(p) = (n̂·((p − c)⊙s) − d) / s_min, with c the centre voxel (dims − 1)/2.
+        let n = normal.map(|v| v / len);
+        let coef: [f64; 3] = core::array::from_fn(|a| n[a] * s[a] / smin);
+        let centre: f64 = (0..3)
+            .map(|a| coef[a] * (grid.dims[a] as f64 - 1.0) / 2.0)
+            .sum();
+        // Beyond 2^31 smallest spacings a plane is far outside any volume either way.
+        let lim = (1u64 << 31) as f64;
+        let r = (centre + (distance / smin).clamp(-lim, lim)) * Q16 as f64;
+        let mut out = self;
+        out.planes[self.len] = Plane {
+            q: coef.map(|c| libm::round(c * Q16 as f64) as i64),
+            r: libm::round(r) as i64,
+        };
+        out.len += 1;
+        Ok(out)
+    }
+
+    /// Planes held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether no plane is held (everything kept).
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    fn planes(&self) -> &[Plane] {
+        self.planes.get(..self.len).unwrap_or_default()
+    }
+
+    /// This clip with each plane's coefficients reordered as `v` is by `permute` (a
+    /// view's object axes to its roles `(i, j, k)`: [`crate::view::Factorization::permute`]),
+    /// so that [`Clip::coverage`] takes positions in those roles.
+    pub fn permuted(&self, permute: impl Fn([i64; 3]) -> [i64; 3]) -> Clip {
+        let mut out = *self;
+        for p in out.planes.iter_mut() {
+            p.q = permute(p.q);
+        }
+        out
+    }
+
+    /// Coverage at index-space position `p`, given with `frac` fractional bits (at
+    /// most 16; positions at most 2^13 voxels from the origin): Q16, 0 (cut away) to
+    /// 65536 (kept), falling from one to the other over the voxel the plane crosses.
+    pub fn coverage(&self, p: [i64; 3], frac: u32) -> u32 {
+        let frac = frac.min(16);
+        let mut cov = Q16;
+        for pl in self.planes() {
+            let dot = pl.q[0] * p[0] + pl.q[1] * p[1] + pl.q[2] * p[2];
+            let sigma = (dot >> frac) - pl.r;
+            cov = cov.min((Q16 / 2 - sigma).clamp(0, Q16));
+        }
+        cov as u32
+    }
+
+    /// Scales the opacity of the voxels of z slices `slices` of a volume of `grid` by
+    /// their coverage, in `out`, which holds those slices' records from its start as
+    /// [`crate::classify::classify_slices`] writes them. A voxel left with no opacity
+    /// loses its normal too ([`crate::normal::ZERO_GRADIENT`]), as a cropped one does.
+    pub fn apply(
+        &self,
+        grid: &Grid,
+        slices: core::ops::Range<usize>,
+        out: &mut [Voxel],
+    ) -> Result<(), Error> {
+        let plane = crate::crop::slice_records(grid, &slices, out.len())?;
+        let nx = grid.dims[0];
+        if self.is_empty() {
+            return Ok(());
+        }
+        // `Grid` keeps every side at least 1; `max` says so to the compiler, so that
+        // `chunks_exact_mut` keeps no panic path (the firmware links only without one).
+        for (z, slice) in slices.zip(out.chunks_exact_mut(plane.max(1))) {
+            for (y, row) in slice.chunks_exact_mut(nx.max(1)).enumerate() {
+                // Each plane's σ along the row, stepping by its q_x from x = 0.
+                let mut sigma = [0i64; MAX_PLANES];
+                for (s, pl) in sigma.iter_mut().zip(self.planes()) {
+                    *s = pl.q[1] * y as i64 + pl.q[2] * z as i64 - pl.r;
+                }
+                for v in row.iter_mut() {
+                    let mut cov = Q16;
+                    for (s, pl) in sigma.iter_mut().zip(self.planes()) {
+                        cov = cov.min((Q16 / 2 - *s).clamp(0, Q16));
+                        *s += pl.q[0];
+                    }
+                    if cov < Q16 {
+                        let a = (v.opacity as i64 * cov + Q16 / 2) >> 16;
+                        v.opacity = a as u8;
+                        if a == 0 {
+                            v.normal = crate::normal::ZERO_GRADIENT;
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(dims: [usize; 3], spacing: [f64; 3]) -> Grid {
+        Grid::new(dims, spacing).unwrap()
+    }
+
+    #[test]
+    fn an_axis_plane_through_the_centre_keeps_the_lower_half() {
+        let g = grid([9, 3, 3], [1.0; 3]);
+        let clip = Clip::NONE.with_plane(&g, [2.0, 0.0, 0.0], 0.0).unwrap();
+        // The plane is at x = 4: voxels below are kept, the one it halves keeps half
+        // its opacity, the ones above are cut away.
+        let cov: [u32; 9] = core::array::from_fn(|x| clip.coverage([x as i64, 1, 1], 0));
+        assert_eq!(cov, [65536, 65536, 65536, 65536, 32768, 0, 0, 0, 0]);
+        // Between voxels, in Q8: a quarter voxel below the plane keeps three quarters.
+        assert_eq!(clip.coverage([(4 << 8) - 64, 0, 0], 8), 49152);
+        // Moving the plane by 1.5 physical units moves the cut by as many voxels.
+        let moved = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 1.5).unwrap();
+        assert_eq!(moved.coverage([5, 0, 0], 0), 65536);
+        assert_eq!(moved.coverage([6, 0, 0], 0), 0);
+    }
+
+    #[test]
+    fn spacing_scales_the_plane_and_the_ramp() {
+        // x spacing 2: the plane 3 mm from the centre (x index 4) lies at index 5.5, and
+        // one x voxel is two units of the smallest spacing, so the ramp is half a voxel.
+        let g = grid([9, 3, 3], [2.0, 1.0, 1.0]);
+        let clip = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 3.0).unwrap();
+        let cov: [u32; 9] = core::array::from_fn(|x| clip.coverage([x as i64, 0, 0], 0));
+        assert_eq!(cov, [65536, 65536, 65536, 65536, 65536, 65536, 0, 0, 0]);
+        assert_eq!(clip.coverage([(11 << 2) / 2, 0, 0], 2), 32768);
+    }
+
+    #[test]
+    fn oblique_planes_and_their_intersection() {
+        let g = grid([8, 8, 8], [1.0; 3]);
+        // x + y ≤ 7 (through the centre, 3.5 + 3.5), and z ≤ 3.5.
+        let clip = Clip::NONE
+            .with_plane(&g, [1.0, 1.0, 0.0], 0.0)
+            .and_then(|c| c.with_plane(&g, [0.0, 0.0, 1.0], 0.0))
+            .unwrap();
+        assert_eq!(clip.len(), 2);
+        assert_eq!(clip.coverage([0, 0, 0], 0), 65536);
+        assert_eq!(clip.coverage([7, 7, 0], 0), 0);
+        assert_eq!(clip.coverage([2, 2, 7], 0), 0);
+        // On the diagonal plane: half.
+        assert_eq!(clip.coverage([3, 4, 0], 0), 32768);
+        // The planes in a view's roles (here i = z, j = x, k = y) give the same answer.
+        let p = clip.permuted(|[x, y, z]| [z, x, y]);
+        for pos in [[0, 0, 0], [7, 7, 0], [3, 4, 0], [2, 2, 7], [5, 1, 3]] {
+            let [x, y, z] = pos;
+            assert_eq!(p.coverage([z, x, y], 0), clip.coverage(pos, 0));
+        }
+    }
+
+    #[test]
+    fn apply_fades_the_voxels_the_planes_cross() {
+        let dims = [6, 2, 2];
+        let g = grid(dims, [1.0; 3]);
+        let clip = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 0.0).unwrap();
+        let mut out = [Voxel {
+            opacity: 200,
+            scalar: 9,
+            normal: 5,
+        }; 24];
+        clip.apply(&g, 0..2, &mut out).unwrap();
+        for (n, v) in out.iter().enumerate() {
+            let x = n % 6;
+            // The plane is at x = 2.5: voxel 2 is a half voxel inside, 3 a half outside.
+            let (a, normal) = if x <= 2 {
+                (200, 5)
+            } else {
+                (0, crate::normal::ZERO_GRADIENT)
+            };
+            assert_eq!((v.opacity, v.scalar, v.normal), (a, 9, normal), "x = {x}");
+        }
+        // Shifted by a quarter voxel, voxel 3 keeps a quarter.
+        let mut out = [Voxel {
+            opacity: 200,
+            scalar: 9,
+            normal: 5,
+        }; 24];
+        let q = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 0.25).unwrap();
+        q.apply(&g, 0..2, &mut out).unwrap();
+        assert_eq!(out[2].opacity, 200);
+        assert_eq!(out[3].opacity, 50);
+        assert_eq!(out[4].opacity, 0);
+        // No planes: nothing changes.
+        let mut same = out;
+        Clip::NONE.apply(&g, 0..2, &mut same).unwrap();
+        assert_eq!(same, out);
+    }
+
+    #[test]
+    fn bad_planes_and_buffers_are_refused() {
+        let g = grid([4, 4, 4], [1.0; 3]);
+        assert!(Clip::NONE.with_plane(&g, [0.0; 3], 0.0).is_err());
+        assert!(Clip::NONE
+            .with_plane(&g, [f64::NAN, 1.0, 0.0], 0.0)
+            .is_err());
+        assert!(Clip::NONE
+            .with_plane(&g, [1.0, 0.0, 0.0], f64::INFINITY)
+            .is_err());
+        let mut full = Clip::NONE;
+        for _ in 0..MAX_PLANES {
+            full = full.with_plane(&g, [0.0, 1.0, 0.0], 0.0).unwrap();
+        }
+        assert!(full.with_plane(&g, [0.0, 1.0, 0.0], 0.0).is_err());
+        let flat = grid([4, 4, 4], [1.0, 1.0, 1e6]);
+        assert!(Clip::NONE.with_plane(&flat, [0.0, 0.0, 1.0], 0.0).is_err());
+        // A huge distance keeps everything; its negation nothing.
+        let far = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 1e300).unwrap();
+        let none = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], -1e300).unwrap();
+        assert_eq!(far.coverage([3, 3, 3], 0), 65536);
+        assert_eq!(none.coverage([0, 0, 0], 0), 0);
+        let mut short = [Voxel::default(); 15];
+        assert!(far.apply(&g, 0..1, &mut short).is_err());
+        assert!(far.apply(&g, 3..5, &mut [Voxel::default(); 32]).is_err());
+    }
+}
