@@ -122,6 +122,67 @@ fn crop_boxes_from_the_command_line() {
     assert!(level != render(&[&h, "--lod", "1"], &t.p("lod-plain.png")));
 }
 
+/// `--clip`: a plane at offset 1 (touching the volume's far corner) changes nothing; an
+/// axis plane through the centre cuts the classified volume where `--crop` does; an oblique
+/// one changes the picture in every mode and at a level of detail; planes encoded into
+/// a `.swv` render as the same planes given at render time.
+#[test]
+fn clipping_planes_from_the_command_line() {
+    let t = Tmp::new("clip");
+    let h = head64();
+    let run = |extra: &[&str], name: &str| {
+        let mut a = vec![h.as_str(), "--shading"];
+        a.extend(extra);
+        render(&a, &t.p(&format!("{name}.png")))
+    };
+    for mode in ["composite", "post"] {
+        let m = ["--mode", mode];
+        let plain = run(&m, &format!("{mode}-plain"));
+        let far = run(
+            &[&m[..], &["--clip", "1,0.5,-0.8:1"]].concat(),
+            &format!("{mode}-far"),
+        );
+        assert!(far == plain, "{mode}: a plane past the volume");
+        // x = 31.5 between voxels 31 and 32 of 64: exactly the box x ≤ 31.
+        let plane = run(
+            &[&m[..], &["--clip", "1,0,0"]].concat(),
+            &format!("{mode}-x"),
+        );
+        let boxed = run(
+            &[&m[..], &["--crop", ":31,,"]].concat(),
+            &format!("{mode}-box"),
+        );
+        // Classified, voxel 31 keeps all its opacity and 32 none: the box's voxels.
+        // Per sample, the plane fades the samples between them, which the box keeps or
+        // cuts whole.
+        assert_eq!(
+            plane == boxed,
+            mode == "composite",
+            "{mode}: the plane and the box"
+        );
+        assert!(plane != plain, "{mode}: the axis plane cuts");
+    }
+    for mode in ["preint", "iso"] {
+        let m = ["--mode", mode, "--iso", "60"];
+        let plain = run(&m, &format!("{mode}-plain"));
+        let cut = run(&[&m[..], &["--clip", "1,0.5,0.8:-0.2"]].concat(), mode);
+        assert!(cut != plain, "{mode}: an oblique plane cuts");
+    }
+    let two = ["--clip", "1,0.5,0.8:0.3", "--clip", "-1,-0.5,-0.8:0.3"];
+    let slab = render(&[&[h.as_str()][..], &two].concat(), &t.p("slab.png"));
+    let swv = t.p("slab.swv");
+    let mut a = vec!["encode", h.as_str(), "-o", swv.as_str()];
+    a.extend(two);
+    let (code, _, err) = shearwarp(&a);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        render(&[&swv], &t.p("slab-swv.png")) == slab,
+        "encoded planes"
+    );
+    let level = run(&["--lod", "1", "--clip", "0,1,1"], "lod");
+    assert!(level != run(&["--lod", "1"], "lod-plain"));
+}
+
 #[test]
 fn unclassified_modes_render_the_same_png_on_any_thread_count() {
     let t = Tmp::new("post-threads");
@@ -706,6 +767,32 @@ fn bad_inputs_exit_2_with_one_line() {
         a.extend(s(extra));
         cases.push((a, want.into()));
     }
+    // Bad clipping planes.
+    for (extra, want) in [
+        (
+            &["1,0"][..],
+            "--clip '1,0': expected a normal NX,NY,NZ and an optional :OFFSET",
+        ),
+        (&["0,0,0"], "--clip '0,0,0': the normal is zero"),
+        (&["1,x,0"], "--clip '1,x,0': 'x' is not a number"),
+        (&["1,0,0:2"], "--clip '1,0,0:2': offset 2 is outside -1..=1"),
+        (&["1,0,0:nan"], "--clip '1,0,0:nan': 'nan' is not a number"),
+        (
+            &[
+                "1,0,0", "--clip", "1,0,0", "--clip", "1,0,0", "--clip", "1,0,0", "--clip",
+                "1,0,0", "--clip", "1,0,0", "--clip", "1,0,0",
+            ],
+            "--clip: at most 6 planes",
+        ),
+    ] {
+        let mut a = s(&["render", &head64(), "-o", &o, "--clip"]);
+        a.extend(s(extra));
+        cases.push((a, want.into()));
+    }
+    cases.push((
+        s(&["render", &swv, "-o", &o, "--clip", "1,0,0"]),
+        "whole.swv: opacity is baked into a .swv file".into(),
+    ));
     cases.push((
         s(&["render", &swv, "-o", &o, "--crop", ":31,,"]),
         "whole.swv: opacity is baked into a .swv file".into(),
