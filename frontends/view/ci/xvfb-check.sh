@@ -58,7 +58,8 @@ eval "\"$bin/shearwarp\" render $args -o \"$out/file.png\""
     --save-a "$out/window.png"
 
 # Perspective, without a window: the refined frame against `shearwarp render` of the
-# printed arguments, which must ask for perspective and not for depth cueing.
+# printed arguments, which must ask for perspective and the viewer's clipping plane, and
+# not for depth cueing.
 "$bin/shearwarp-view" "$vol" --rotate-x -70 --rotate-y -10 --threads 2 --no-window \
     --perspective --fov 45 --script frontends/view/ci/perspective.script \
     --dump "$out/view-persp.png" >"$out/view-persp.log" 2>&1 \
@@ -66,8 +67,8 @@ eval "\"$bin/shearwarp\" render $args -o \"$out/file.png\""
 args=$(sed -n 's/^cli-args: //p' "$out/view-persp.log" | tail -n 1)
 case "$args" in
     *--depth-cue*) echo "depth cueing printed for a perspective frame: $args"; exit 1 ;;
-    *"--projection perspective --fov 45"*) ;;
-    *) echo "the final frame should be in perspective: $args"; exit 1 ;;
+    *"--projection perspective --fov 45"*--clip=*) ;;
+    *) echo "the final frame should be in perspective and clipped: $args"; exit 1 ;;
 esac
 echo "reference: shearwarp render $args -o $out/file-persp.png"
 eval "\"$bin/shearwarp\" render $args -o \"$out/file-persp.png\""

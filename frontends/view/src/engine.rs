@@ -19,6 +19,7 @@ use crate::classifier::{Classifier, Encoding, LevelRle};
 use crate::preset::{self, PRESETS};
 use crate::render::{self, Compositor, ImageMap};
 use crate::state::{self, ViewState};
+use shearwarp_core::classify::Grid;
 use shearwarp_core::composite::Mode;
 use shearwarp_core::rle::Axis;
 use shearwarp_core::shade::Lighting;
@@ -124,22 +125,22 @@ impl Scene {
         })
     }
 
-    /// The classification of `view` for a level of `dims` voxels (the full volume's, or
-    /// the preview's, which keeps its voxels centred in the full volume's box).
-    pub fn classification(&self, view: &ViewState, dims: [usize; 3]) -> Classification {
-        let full = self.full.dims;
+    /// The classification of `view` for a level of the volume (the full volume's grid,
+    /// or the preview's, which keeps its voxels centred in the full volume's box).
+    pub fn classification(&self, view: &ViewState, grid: &Grid) -> Result<Classification, Error> {
+        let (full, dims) = (self.full.dims, grid.dims);
         let crop = view.cut.crop(full).and_then(|c| {
             // The preview is level 1: each of its voxels stands for two.
             let factor = if dims == full { 1 } else { 2 };
             c.at_level(full, dims, factor)
         });
-        Classification {
+        Ok(Classification {
             opacity: preset::opacity_points(&PRESETS[view.preset], view.wl, self.range),
             gradient: None,
             min_opacity: self.settings.min_opacity,
             crop,
-            clip: shearwarp_core::clip::Clip::NONE,
-        }
+            clip: view.cut.clip(grid)?,
+        })
     }
 
     /// The look of `view` for a level encoded over `range`; `shadows` asks for shadows
@@ -297,7 +298,7 @@ impl Engine {
     }
 
     fn preview(&mut self, job: &Job) -> Result<Outcome, Error> {
-        let class = self.scene.classification(&job.view, self.low.grid.dims);
+        let class = self.scene.classification(&job.view, &self.low.grid)?;
         let camera = self.scene.camera(&job.view);
         let axis = Factorization::new(&self.low.grid, &camera)?.axis;
         let encode_ms = self.low.ensure(&self.low_classifier, &class, axis)?;
@@ -336,10 +337,10 @@ impl Engine {
                 reason: render::CANCELLED,
             });
         }
-        let class = self.scene.classification(&job.view, self.scene.full.dims);
-        let camera = self.scene.camera(&job.view);
         let grid =
             shearwarp_core::classify::Grid::new(self.scene.full.dims, self.scene.full.spacing)?;
+        let class = self.scene.classification(&job.view, &grid)?;
+        let camera = self.scene.camera(&job.view);
         let axis = Factorization::new(&grid, &camera)?.axis;
         let missing = |full: &Option<LevelRle>| match full {
             Some(l) => l.missing(&class, axis),

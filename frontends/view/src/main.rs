@@ -406,8 +406,10 @@ impl App {
                 _ => " | shadows",
             };
         }
-        if let state::Cut::Half(a) = v.cut {
-            t += &format!(" | cut: {} ≤ ½", ["x", "y", "z"][a.min(2)]);
+        match v.cut {
+            state::Cut::Whole => {}
+            state::Cut::Half(a) => t += &format!(" | cut: {} ≤ ½", ["x", "y", "z"][a.min(2)]),
+            state::Cut::Facing(_) => t += " | cut: the near half",
         }
         if v.zoom != 1.0 || v.pan != [0.0; 2] {
             t += &format!(" | zoom {:.2}", v.zoom);
@@ -456,7 +458,7 @@ impl App {
             a.push(format!("--depth-cue {}:{}", c.front, c.density));
         }
         if let Some(spec) = view.cut.spec(self.dims) {
-            a.push(format!("--crop {spec}"));
+            a.push(spec);
         }
         if self.u16 {
             a.push("--u16".into());

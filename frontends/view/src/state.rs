@@ -3,6 +3,8 @@
 //! a person does.
 
 use crate::preset::{WindowLevel, PRESETS};
+use shearwarp_core::classify::Grid;
+use shearwarp_core::clip::Clip;
 use shearwarp_core::crop::Crop;
 use shearwarp_core::depth::DepthCue;
 
@@ -32,24 +34,41 @@ pub const LEVEL_PER_KEY: f64 = 0.01;
 /// Window factor per key press.
 pub const WINDOW_PER_KEY: f64 = 1.15;
 
-/// How the volume is cut open (the C key): the whole of it, or the lower half of its
-/// voxel indices along one axis, a crop box ([`shearwarp_core::crop`]) that shows the
-/// inside on the cut face.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// How the volume is cut open (the C key): the whole of it; the lower half of its voxel
+/// indices along one axis, a crop box ([`shearwarp_core::crop`]); or the half facing the
+/// viewer taken away by a clipping plane through the centre ([`shearwarp_core::clip`]).
+/// Each shows the inside on the cut face.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Cut {
     #[default]
     Whole,
     /// Voxels `0..=(n − 1)/2` along x, y or z (0, 1, 2).
     Half(usize),
+    /// The plane through the centre with this normal (physical x, y, z): the direction
+    /// toward the viewer when the key was pressed. The plane stays put as the view
+    /// turns, so the cut face can be looked at from the side.
+    Facing([f64; 3]),
 }
 
 impl Cut {
-    /// The next cut in the C key's cycle: whole, half in x, in y, in z.
-    pub fn next(self) -> Cut {
+    /// The next cut in the C key's cycle: whole, half in x, in y, in z, the half facing
+    /// a viewer at rotations `rotate_x`, `rotate_y`.
+    pub fn next(self, rotate_x: f64, rotate_y: f64) -> Cut {
         match self {
             Cut::Whole => Cut::Half(0),
             Cut::Half(a) if a < 2 => Cut::Half(a + 1),
-            Cut::Half(_) => Cut::Whole,
+            // The camera looks down −z: toward it is the third row of the rotation.
+            Cut::Half(_) => Cut::Facing(shearwarp_core::view::rotation(rotate_x, rotate_y)[2]),
+            Cut::Facing(_) => Cut::Whole,
+        }
+    }
+
+    /// The clipping plane of a grid (the full volume's, or a level's: they share the
+    /// centre the plane goes through), or none.
+    pub fn clip(self, grid: &Grid) -> Result<Clip, shearwarp_core::Error> {
+        match self {
+            Cut::Facing(n) => Clip::NONE.with_plane(grid, n, 0.0),
+            _ => Ok(Clip::NONE),
         }
     }
 
@@ -63,11 +82,16 @@ impl Cut {
         Crop::new([0; 3], hi, dims).ok()
     }
 
-    /// The same box as `shearwarp render --crop` takes it, for a volume of `dims`.
+    /// The same cut as `shearwarp render` takes it (`--crop …` or `--clip …`), for a
+    /// volume of `dims`. The normal prints as its shortest round-trip decimals, so the
+    /// command's plane is this one to the bit.
     pub fn spec(self, dims: [usize; 3]) -> Option<String> {
+        if let Cut::Facing([x, y, z]) = self {
+            return Some(format!("--clip={x},{y},{z}"));
+        }
         let c = self.crop(dims)?;
         let r = |a: usize| format!("{}:{}", c.lo()[a], c.hi()[a]);
-        Some(format!("{},{},{}", r(0), r(1), r(2)))
+        Some(format!("--crop {},{},{}", r(0), r(1), r(2)))
     }
 }
 
@@ -231,7 +255,7 @@ pub const KEYS: &[(&str, &str, ViewKey)] = &[
     ),
     (
         "c",
-        "C: cut the volume open: whole, lower half in x, in y, in z",
+        "C: cut the volume open: whole, lower half in x, in y, in z, the half facing you",
         ViewKey::Cut,
     ),
     ("s", "S: screenshot to PNG", ViewKey::Screenshot),
@@ -338,7 +362,7 @@ pub fn apply(view: &mut ViewState, home: &ViewState, input: Input, size: [usize;
             ViewKey::Shadows => view.shadows = !view.shadows,
             ViewKey::DepthCue => view.depth_cue = !view.depth_cue,
             ViewKey::Perspective => view.perspective = !view.perspective,
-            ViewKey::Cut => view.cut = view.cut.next(),
+            ViewKey::Cut => view.cut = view.cut.next(view.rotate_x, view.rotate_y),
             ViewKey::Screenshot => return Request::Screenshot,
             ViewKey::SaveTf => return Request::SaveTf,
             ViewKey::Print => return Request::Print,
@@ -466,11 +490,11 @@ mod tests {
 
     #[test]
     fn the_c_key_cycles_the_cuts_and_their_boxes() {
-        let home = ViewState::new(0.0, 0.0, 0, true);
+        let home = ViewState::new(-90.0, 0.0, 0, true);
         let mut v = home;
         let dims = [64, 65, 1];
         let mut seen = Vec::new();
-        for _ in 0..4 {
+        for _ in 0..5 {
             seen.push(v.cut.spec(dims));
             let mut w = v;
             apply(&mut w, &home, Input::Key(ViewKey::Cut), [100, 100]);
@@ -480,11 +504,19 @@ mod tests {
         assert_eq!(v.cut, Cut::Whole);
         let want = [
             None,
-            Some("0:31,0:64,0:0"),
-            Some("0:63,0:32,0:0"),
-            Some("0:63,0:64,0:0"),
+            Some("--crop 0:31,0:64,0:0"),
+            Some("--crop 0:63,0:32,0:0"),
+            Some("--crop 0:63,0:64,0:0"),
+            // Seen from rotate-x −90 (looking along +y), the viewer is toward −y.
+            Some("--clip=-0,-1,0"),
         ];
         assert_eq!(seen, want.map(|s| s.map(String::from)));
+        // The plane through the centre facing −y keeps the voxels of larger y.
+        let grid = Grid::new(dims, [1.0; 3]).unwrap();
+        let facing = Cut::Facing([0.0, -1.0, 0.0]).clip(&grid).unwrap();
+        assert_eq!(facing.coverage([0, 31, 0], 0), 0);
+        assert_eq!(facing.coverage([0, 33, 0], 0), 1 << 16);
+        assert_eq!(Cut::Half(1).clip(&grid).unwrap(), Clip::NONE);
     }
 
     #[test]
