@@ -427,6 +427,21 @@ pub fn composite_band(
     voxels: &[Voxel],
     img: &mut Intermediate<'_>,
 ) -> Result<(), Error> {
+    // Two builds of the loop: without planes, the coverage code is compiled out (it cost
+    // 2–4 % more instructions in the band when it was only branched around).
+    if frame.clip.is_empty() {
+        composite_band_clipped::<false>(frame, voxels, img)
+    } else {
+        composite_band_clipped::<true>(frame, voxels, img)
+    }
+}
+
+/// [`composite_band`], taking the clipping planes into account only if `CLIPPED`.
+fn composite_band_clipped<const CLIPPED: bool>(
+    frame: &PostFrame<'_>,
+    voxels: &[Voxel],
+    img: &mut Intermediate<'_>,
+) -> Result<(), Error> {
     let (grid, view) = (&frame.grid, &frame.view);
     need("voxels", grid.voxel_count(), voxels.len())?;
     if [img.width(), img.height()] != view.intermediate {
@@ -454,7 +469,7 @@ pub fn composite_band(
     let (i_lo, i_hi, j_lo, j_hi) = (i_lo * half, i_hi * half, j_lo * half, j_hi * half);
     // A slice is inside when its cell's centre is: cells in half voxels, slices whole.
     let slice_in = |k: usize| (k_lo..=k_hi).contains(&(2 * k as i64));
-    let (q, unclipped) = (ONE as i64, frame.clip.is_empty());
+    let q = ONE as i64;
     let slabs = match frame.mode {
         PostMode::PostClassified => nk,
         _ => nk.saturating_sub(1),
@@ -522,13 +537,16 @@ pub fn composite_band(
                     // Coverage by the clipping planes, where the mode's sample is: the
                     // slice's sample, the middle of a slab, or (isosurfaces, below)
                     // the crossing.
-                    let back = [(u as i64 - bu.n as i64) * q - bu.f as i64, vpos_b, kb_q];
+                    let front = [pos, vpos, kf_q];
+                    let back = || [(u as i64 - bu.n as i64) * q - bu.f as i64, vpos_b, kb_q];
                     let cov = match frame.mode {
-                        _ if unclipped => 1 << 16,
-                        PostMode::PostClassified => frame.clip.coverage([pos, vpos, kf_q], 15),
+                        _ if !CLIPPED => 1 << 16,
+                        PostMode::PostClassified => frame.clip.coverage(front, 15),
                         PostMode::PreIntegrated => {
-                            let mid = [0, 1, 2].map(|a| ([pos, vpos, kf_q][a] + back[a]) / 2);
-                            frame.clip.coverage(mid, 15)
+                            let b = back();
+                            frame
+                                .clip
+                                .coverage([0, 1, 2].map(|a| (front[a] + b[a]) / 2), 15)
                         }
                         PostMode::Isosurface(_) => 1 << 16,
                     };
@@ -581,10 +599,10 @@ pub fn composite_band(
                                 .clamp(0, ONE as i64) as u32;
                             // A crossing beyond a plane is cut away whole: the surface
                             // ends at the plane, which shows what it encloses.
-                            if !unclipped {
-                                let front = [pos, vpos, kf_q];
+                            if CLIPPED {
+                                let b = back();
                                 let at = [0, 1, 2]
-                                    .map(|a| front[a] + (((back[a] - front[a]) * t as i64) >> 15));
+                                    .map(|a| front[a] + (((b[a] - front[a]) * t as i64) >> 15));
                                 if frame.clip.coverage(at, 15) < 1 << 15 {
                                     u += 1;
                                     continue;

@@ -8,7 +8,7 @@
 //! the Q15 opacity and colour tables (any `u16`, so also above one), the lighting (any
 //! coefficients, which `Lighting::validate` must refuse or the frame must survive), the
 //! view's angles (any `f64` bits, some of the time), the image size, the mode, the
-//! isovalue and the early-termination threshold. Errors are fine; panics, overflows
+//! isovalue, the early-termination threshold, a crop box and clipping planes. Errors are fine; panics, overflows
 //! (the targets build with overflow checks) and a colour above its alpha are not, nor
 //! bands of scanlines (`postclass::composite_band`, as the threads composite them) that
 //! differ from the whole intermediate image.
@@ -16,6 +16,7 @@
 
 use libfuzzer_sys::fuzz_target;
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{Intermediate, Rgba};
 use shearwarp_core::crop::Crop;
 use shearwarp_core::postclass::{self, PostMode, PostSettings, PostTables, PostWorkspace};
@@ -111,6 +112,14 @@ fuzz_target!(|data: &[u8]| {
     // the same box, which may then lie outside it).
     let (lo, hi) = ([b.u8(), b.u8(), b.u8()], [b.u8(), b.u8(), b.u8()]);
     let crop = Crop::new(lo.map(usize::from), hi.map(usize::from), dims).ok();
+    // Up to three clipping planes of any normal and distance, each kept when this grid
+    // accepts it (the level below gets the same planes, made for this grid).
+    let mut clip = Clip::NONE;
+    for _ in 0..b.u8() % 4 {
+        let tame = |b: &mut Bytes<'_>| b.f64_or(|x| x as f64 / 16.0 - 8.0);
+        let normal = [tame(&mut b), tame(&mut b), tame(&mut b)];
+        clip = clip.with_plane(&grid, normal, tame(&mut b)).unwrap_or(clip);
+    }
     // The voxels: what is left of the input, repeated.
     let rest = if b.0.is_empty() { &[0u8][..] } else { b.0 };
     let n = grid.voxel_count();
@@ -138,6 +147,7 @@ fuzz_target!(|data: &[u8]| {
         lighting: look.as_ref(),
         ert_threshold,
         crop,
+        clip,
     };
     frame(&grid, scalars, gradient, &camera, &settings);
     // The level above, drawn with the same settings.
@@ -184,6 +194,7 @@ fn frame(
         // may not fit this volume).
         let _ = c.apply(grid, 0..grid.dims[2], &mut voxels);
     }
+    let _ = settings.clip.apply(grid, 0..grid.dims[2], &mut voxels);
     let mut bricks = vec![(0u8, 0u8); postclass::brick_count(grid.dims)];
     if postclass::build_bricks(grid, &voxels, &mut bricks).is_err() {
         return;
