@@ -108,6 +108,19 @@ impl Clip {
         Ok(out)
     }
 
+    /// The distance from the centre of a volume of `grid` ([`Clip::with_plane`]'s) of the
+    /// plane with `normal` placed `offset` of the way from the centre to the farthest
+    /// corner of the volume's cells along the normal: 0 halves the volume, 1 keeps all
+    /// of it, −1 none. A way to place planes that does not depend on the volume's size;
+    /// give it the full volume's grid for every level of it. NaN for a zero normal.
+    pub fn offset_distance(grid: &Grid, normal: [f64; 3], offset: f64) -> f64 {
+        let len = libm::sqrt(normal.iter().map(|n| n * n).sum::<f64>());
+        let half: f64 = (0..3)
+            .map(|a| libm::fabs(normal[a] / len) * grid.dims[a] as f64 * grid.spacing[a] / 2.0)
+            .sum();
+        offset * half
+    }
+
     /// Planes held.
     pub fn len(&self) -> usize {
         self.len
@@ -215,6 +228,13 @@ mod tests {
         let moved = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 1.5).unwrap();
         assert_eq!(moved.coverage([5, 0, 0], 0), 65536);
         assert_eq!(moved.coverage([6, 0, 0], 0), 0);
+        // Offsets: the half-extent along x is 4.5 cells; along the diagonal of a square
+        // face of 9 × 3 cells it is (4.5 + 1.5)/√2.
+        assert_eq!(Clip::offset_distance(&g, [2.0, 0.0, 0.0], 1.0), 4.5);
+        assert_eq!(Clip::offset_distance(&g, [-1.0, 0.0, 0.0], -0.5), -2.25);
+        let d = Clip::offset_distance(&g, [1.0, -1.0, 0.0], 1.0);
+        assert!((d - 6.0 / 2f64.sqrt()).abs() < 1e-12);
+        assert!(Clip::offset_distance(&g, [0.0; 3], 0.5).is_nan());
     }
 
     #[test]

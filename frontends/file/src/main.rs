@@ -787,16 +787,12 @@ fn clip_planes(
             shearwarp_core::clip::MAX_PLANES
         )));
     }
+    let grid = shearwarp_core::classify::Grid::new(dims, spacing)?;
     o.clip
         .iter()
         .map(|s| {
             let (n, offset) = parse_clip(s)?;
-            // Half the volume's extent along the normal: its cells, `dims·spacing`.
-            let len = n.iter().map(|v| v * v).sum::<f64>().sqrt();
-            let half: f64 = (0..3)
-                .map(|a| (n[a] / len).abs() * dims[a] as f64 * spacing[a] / 2.0)
-                .sum();
-            Ok((n, offset * half))
+            Ok((n, Clip::offset_distance(&grid, n, offset)))
         })
         .collect()
 }

@@ -67,7 +67,7 @@ eval "\"$bin/shearwarp\" render $args -o \"$out/file.png\""
 args=$(sed -n 's/^cli-args: //p' "$out/view-persp.log" | tail -n 1)
 case "$args" in
     *--depth-cue*) echo "depth cueing printed for a perspective frame: $args"; exit 1 ;;
-    *"--projection perspective --fov 45"*--clip=*) ;;
+    *"--projection perspective --fov 45"*--clip=*:-0.15*) ;;
     *) echo "the final frame should be in perspective and clipped: $args"; exit 1 ;;
 esac
 echo "reference: shearwarp render $args -o $out/file-persp.png"

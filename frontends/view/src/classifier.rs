@@ -329,7 +329,8 @@ mod tests {
             let c = Classifier::new(Arc::clone(&raw)).unwrap();
             let mut comp = Compositor::new(&c.grid(), 2);
             // The last case cuts the volume open (the viewer's C key: lower half in y).
-            let half = crate::state::Cut::Half(1).crop(raw.dims);
+            let cut = crate::state::Cut::Axis { axis: 1, keep: 10 };
+            let half = cut.crop(raw.dims);
             for (k, opacity) in [
                 vec![(0.0, 0.0), (60.0, 0.0), (150.0, 0.5), (255.0, 0.9)],
                 vec![(20.0, 0.0), (3000.0, 1.0)],

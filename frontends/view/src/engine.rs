@@ -125,6 +125,11 @@ impl Scene {
         })
     }
 
+    /// The full volume's grid.
+    pub fn grid(&self) -> Result<Grid, Error> {
+        Grid::new(self.full.dims, self.full.spacing)
+    }
+
     /// The classification of `view` for a level of the volume (the full volume's grid,
     /// or the preview's, which keeps its voxels centred in the full volume's box).
     pub fn classification(&self, view: &ViewState, grid: &Grid) -> Result<Classification, Error> {
@@ -139,7 +144,7 @@ impl Scene {
             gradient: None,
             min_opacity: self.settings.min_opacity,
             crop,
-            clip: view.cut.clip(grid)?,
+            clip: view.cut.clip(&self.grid()?, grid)?,
         })
     }
 
@@ -337,8 +342,7 @@ impl Engine {
                 reason: render::CANCELLED,
             });
         }
-        let grid =
-            shearwarp_core::classify::Grid::new(self.scene.full.dims, self.scene.full.spacing)?;
+        let grid = self.scene.grid()?;
         let class = self.scene.classification(&job.view, &grid)?;
         let camera = self.scene.camera(&job.view);
         let axis = Factorization::new(&grid, &camera)?.axis;

@@ -406,10 +406,8 @@ impl App {
                 _ => " | shadows",
             };
         }
-        match v.cut {
-            state::Cut::Whole => {}
-            state::Cut::Half(a) => t += &format!(" | cut: {} ≤ ½", ["x", "y", "z"][a.min(2)]),
-            state::Cut::Facing(_) => t += " | cut: the near half",
+        if let Some(cut) = v.cut.describe() {
+            t += &format!(" | cut: {cut}");
         }
         if v.zoom != 1.0 || v.pan != [0.0; 2] {
             t += &format!(" | zoom {:.2}", v.zoom);
@@ -656,6 +654,8 @@ fn map_key(k: Key, shift: bool) -> Option<ViewKey> {
         Key::D => ViewKey::DepthCue,
         Key::O => ViewKey::Perspective,
         Key::C => ViewKey::Cut,
+        Key::F => ViewKey::CutMore,
+        Key::B => ViewKey::CutLess,
         Key::S => ViewKey::Screenshot,
         Key::T => ViewKey::SaveTf,
         Key::P => ViewKey::Print,

@@ -34,51 +34,95 @@ pub const LEVEL_PER_KEY: f64 = 0.01;
 /// Window factor per key press.
 pub const WINDOW_PER_KEY: f64 = 1.15;
 
-/// How the volume is cut open (the C key): the whole of it; the lower half of its voxel
-/// indices along one axis, a crop box ([`shearwarp_core::crop`]); or the half facing the
-/// viewer taken away by a clipping plane through the centre ([`shearwarp_core::clip`]).
-/// Each shows the inside on the cut face.
+/// Steps of the F and B keys: a twentieth of the cut's range per press.
+pub const CUT_STEPS: i32 = 20;
+
+/// How the volume is cut open (the C key): the whole of it; the lower part of its voxel
+/// indices along one axis, a crop box ([`shearwarp_core::crop`]); or the part facing the
+/// viewer taken away by a clipping plane ([`shearwarp_core::clip`]). Each shows the
+/// inside on the cut face; F and B move the cut, in steps of 1/[`CUT_STEPS`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Cut {
     #[default]
     Whole,
-    /// Voxels `0..=(n − 1)/2` along x, y or z (0, 1, 2).
-    Half(usize),
-    /// The plane through the centre with this normal (physical x, y, z): the direction
-    /// toward the viewer when the key was pressed. The plane stays put as the view
-    /// turns, so the cut face can be looked at from the side.
-    Facing([f64; 3]),
+    /// Voxels `0..round(keep · n)` along `axis` x, y or z (0, 1, 2), `keep` in steps
+    /// (1..=[`CUT_STEPS`]; half, `(n − 1)/2` the last voxel kept, to start with).
+    Axis { axis: usize, keep: i32 },
+    /// The plane with this normal (physical x, y, z; the direction toward the viewer
+    /// when the key was pressed), `offset` steps (−[`CUT_STEPS`]..=[`CUT_STEPS`]) of the
+    /// way from the centre to the farthest corner along it
+    /// ([`Clip::offset_distance`]): through the centre to start with. The plane stays
+    /// put as the view turns, so the cut face can be looked at from the side.
+    Facing { normal: [f64; 3], offset: i32 },
 }
 
 impl Cut {
     /// The next cut in the C key's cycle: whole, half in x, in y, in z, the half facing
     /// a viewer at rotations `rotate_x`, `rotate_y`.
     pub fn next(self, rotate_x: f64, rotate_y: f64) -> Cut {
+        let half = CUT_STEPS / 2;
         match self {
-            Cut::Whole => Cut::Half(0),
-            Cut::Half(a) if a < 2 => Cut::Half(a + 1),
+            Cut::Whole => Cut::Axis {
+                axis: 0,
+                keep: half,
+            },
+            Cut::Axis { axis, .. } if axis < 2 => Cut::Axis {
+                axis: axis + 1,
+                keep: half,
+            },
             // The camera looks down −z: toward it is the third row of the rotation.
-            Cut::Half(_) => Cut::Facing(shearwarp_core::view::rotation(rotate_x, rotate_y)[2]),
-            Cut::Facing(_) => Cut::Whole,
+            Cut::Axis { .. } => Cut::Facing {
+                normal: shearwarp_core::view::rotation(rotate_x, rotate_y)[2],
+                offset: 0,
+            },
+            Cut::Facing { .. } => Cut::Whole,
         }
     }
 
-    /// The clipping plane of a grid (the full volume's, or a level's: they share the
-    /// centre the plane goes through), or none.
-    pub fn clip(self, grid: &Grid) -> Result<Clip, shearwarp_core::Error> {
+    /// This cut moved `steps` (F: −1, cutting more away; B: +1), within its range.
+    pub fn moved(self, steps: i32) -> Cut {
         match self {
-            Cut::Facing(n) => Clip::NONE.with_plane(grid, n, 0.0),
+            Cut::Whole => Cut::Whole,
+            Cut::Axis { axis, keep } => Cut::Axis {
+                axis,
+                keep: (keep + steps).clamp(1, CUT_STEPS),
+            },
+            Cut::Facing { normal, offset } => Cut::Facing {
+                normal,
+                offset: (offset + steps).clamp(-CUT_STEPS, CUT_STEPS),
+            },
+        }
+    }
+
+    /// The plane's offset as `shearwarp render --clip` takes it (steps of a twentieth
+    /// print exactly as the division gives them).
+    fn offset(offset: i32) -> f64 {
+        offset as f64 / CUT_STEPS as f64
+    }
+
+    /// The clipping plane on a level's grid `grid` of the volume whose grid is `full`
+    /// (the plane is placed on the full volume; a level shares its centre), or none.
+    pub fn clip(self, full: &Grid, grid: &Grid) -> Result<Clip, shearwarp_core::Error> {
+        match self {
+            Cut::Facing { normal, offset } => {
+                let d = Clip::offset_distance(full, normal, Cut::offset(offset));
+                Clip::NONE.with_plane(grid, normal, d)
+            }
             _ => Ok(Clip::NONE),
         }
     }
 
     /// The box of a volume of `dims`, or `None` for the whole.
     pub fn crop(self, dims: [usize; 3]) -> Option<Crop> {
-        let Cut::Half(axis) = self else {
+        let Cut::Axis { axis, keep } = self else {
             return None;
         };
+        let a = axis.min(2);
         let mut hi = Crop::whole(dims).hi();
-        hi[axis.min(2)] /= 2;
+        // round(keep/STEPS · n) voxels, at least one: (2·keep·n + STEPS) / (2·STEPS).
+        let kept =
+            (2 * keep.max(1) as usize * dims[a] + CUT_STEPS as usize) / (2 * CUT_STEPS as usize);
+        hi[a] = kept.clamp(1, dims[a]) - 1;
         Crop::new([0; 3], hi, dims).ok()
     }
 
@@ -86,12 +130,29 @@ impl Cut {
     /// volume of `dims`. The normal prints as its shortest round-trip decimals, so the
     /// command's plane is this one to the bit.
     pub fn spec(self, dims: [usize; 3]) -> Option<String> {
-        if let Cut::Facing([x, y, z]) = self {
-            return Some(format!("--clip={x},{y},{z}"));
+        if let Cut::Facing {
+            normal: [x, y, z],
+            offset,
+        } = self
+        {
+            return Some(format!("--clip={x},{y},{z}:{}", Cut::offset(offset)));
         }
         let c = self.crop(dims)?;
         let r = |a: usize| format!("{}:{}", c.lo()[a], c.hi()[a]);
         Some(format!("--crop {},{},{}", r(0), r(1), r(2)))
+    }
+
+    /// How the title bar names the cut, or `None` for the whole volume.
+    pub fn describe(self) -> Option<String> {
+        match self {
+            Cut::Whole => None,
+            Cut::Axis { axis, keep } => Some(format!(
+                "{} ≤ {} %",
+                ["x", "y", "z"][axis.min(2)],
+                100 * keep / CUT_STEPS
+            )),
+            Cut::Facing { offset, .. } => Some(format!("plane at {:+.2}", Cut::offset(offset))),
+        }
     }
 }
 
@@ -192,6 +253,8 @@ pub enum ViewKey {
     DepthCue,
     Perspective,
     Cut,
+    CutMore,
+    CutLess,
     Screenshot,
     SaveTf,
     Print,
@@ -258,6 +321,12 @@ pub const KEYS: &[(&str, &str, ViewKey)] = &[
         "C: cut the volume open: whole, lower half in x, in y, in z, the half facing you",
         ViewKey::Cut,
     ),
+    (
+        "f",
+        "F / B: move the cut forward (cut more away) / back",
+        ViewKey::CutMore,
+    ),
+    ("b", "", ViewKey::CutLess),
     ("s", "S: screenshot to PNG", ViewKey::Screenshot),
     (
         "t",
@@ -363,6 +432,8 @@ pub fn apply(view: &mut ViewState, home: &ViewState, input: Input, size: [usize;
             ViewKey::DepthCue => view.depth_cue = !view.depth_cue,
             ViewKey::Perspective => view.perspective = !view.perspective,
             ViewKey::Cut => view.cut = view.cut.next(view.rotate_x, view.rotate_y),
+            ViewKey::CutMore => view.cut = view.cut.moved(-1),
+            ViewKey::CutLess => view.cut = view.cut.moved(1),
             ViewKey::Screenshot => return Request::Screenshot,
             ViewKey::SaveTf => return Request::SaveTf,
             ViewKey::Print => return Request::Print,
@@ -508,15 +579,59 @@ mod tests {
             Some("--crop 0:63,0:32,0:0"),
             Some("--crop 0:63,0:64,0:0"),
             // Seen from rotate-x −90 (looking along +y), the viewer is toward −y.
-            Some("--clip=-0,-1,0"),
+            Some("--clip=-0,-1,0:0"),
         ];
         assert_eq!(seen, want.map(|s| s.map(String::from)));
         // The plane through the centre facing −y keeps the voxels of larger y.
         let grid = Grid::new(dims, [1.0; 3]).unwrap();
-        let facing = Cut::Facing([0.0, -1.0, 0.0]).clip(&grid).unwrap();
-        assert_eq!(facing.coverage([0, 31, 0], 0), 0);
-        assert_eq!(facing.coverage([0, 33, 0], 0), 1 << 16);
-        assert_eq!(Cut::Half(1).clip(&grid).unwrap(), Clip::NONE);
+        let normal = [0.0, -1.0, 0.0];
+        let facing = Cut::Facing { normal, offset: 0 };
+        let clip = facing.clip(&grid, &grid).unwrap();
+        assert_eq!(clip.coverage([0, 31, 0], 0), 0);
+        assert_eq!(clip.coverage([0, 33, 0], 0), 1 << 16);
+        let half = Cut::Axis { axis: 1, keep: 10 };
+        assert_eq!(half.clip(&grid, &grid).unwrap(), Clip::NONE);
+    }
+
+    #[test]
+    fn f_and_b_move_the_cut_within_its_range() {
+        let dims = [64, 65, 10];
+        let home = ViewState::new(-90.0, 0.0, 0, true);
+        let mut v = home;
+        let press = |v: &mut ViewState, k: ViewKey, n: usize| {
+            for _ in 0..n {
+                let before = *v;
+                apply(v, &home, Input::Key(k), [100, 100]);
+                if v.cut != before.cut {
+                    assert!(!v.same_classification(&before), "a moved cut re-encodes");
+                }
+            }
+        };
+        press(&mut v, ViewKey::CutMore, 1);
+        assert_eq!(v.cut, Cut::Whole, "the whole volume has no cut to move");
+        press(&mut v, ViewKey::Cut, 3);
+        press(&mut v, ViewKey::CutMore, 3);
+        // z: 7/20 of 10 slices, rounded: 4 (the last kept is 3).
+        assert_eq!(v.cut.spec(dims).unwrap(), "--crop 0:63,0:64,0:3");
+        assert_eq!(v.cut.describe().unwrap(), "z ≤ 35 %");
+        press(&mut v, ViewKey::CutMore, 30);
+        assert_eq!(v.cut.spec(dims).unwrap(), "--crop 0:63,0:64,0:0");
+        press(&mut v, ViewKey::CutLess, 40);
+        assert_eq!(v.cut.spec(dims).unwrap(), "--crop 0:63,0:64,0:9");
+        press(&mut v, ViewKey::Cut, 1);
+        press(&mut v, ViewKey::CutMore, 3);
+        assert_eq!(v.cut.spec(dims).unwrap(), "--clip=-0,-1,0:-0.15");
+        assert_eq!(v.cut.describe().unwrap(), "plane at -0.15");
+        // Placed on the full volume: 0.15 of its half-extent (32.5 cells along y) toward
+        // larger y, whatever the grid it is applied to.
+        let full = Grid::new(dims, [1.0; 3]).unwrap();
+        let clip = v.cut.clip(&full, &full).unwrap();
+        let want = Clip::NONE
+            .with_plane(&full, [0.0, -1.0, 0.0], -0.15 * 32.5)
+            .unwrap();
+        assert_eq!(clip, want);
+        press(&mut v, ViewKey::CutLess, 50);
+        assert_eq!(v.cut.spec(dims).unwrap(), "--clip=-0,-1,0:1");
     }
 
     #[test]
