@@ -49,10 +49,17 @@ struct Plane {
 
 /// Up to [`MAX_PLANES`] clipping planes for one grid (a volume, or a level of one).
 /// [`Clip::NONE`] keeps everything.
+///
+/// The planes keep the region behind all of them (each normal points into a part cut
+/// away). [`Clip::inverted`] keeps the rest instead: the region behind all the planes
+/// is what is cut away, so that a few planes take a wedge or a corner out of a volume
+/// and leave the rest of it around the hole as context (inverse clipping,
+/// Rezk-Salama 2001, §9.2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Clip {
     planes: [Plane; MAX_PLANES],
     len: usize,
+    inverse: bool,
 }
 
 impl Default for Clip {
@@ -66,6 +73,7 @@ impl Clip {
     pub const NONE: Clip = Clip {
         planes: [Plane { q: [0; 3], r: 0 }; MAX_PLANES],
         len: 0,
+        inverse: false,
     };
 
     /// This clip and one more plane, for a volume of `grid`: the plane at signed
@@ -131,6 +139,31 @@ impl Clip {
         self.len == 0
     }
 
+    /// These planes cutting away the region behind all of them, which they otherwise
+    /// keep; inverted again, the planes as they were. Without planes, still everything
+    /// kept.
+    pub fn inverted(self) -> Clip {
+        Clip {
+            inverse: !self.inverse && !self.is_empty(),
+            ..self
+        }
+    }
+
+    /// Whether the planes cut away the region behind all of them ([`Clip::inverted`]).
+    pub fn is_inverse(&self) -> bool {
+        self.inverse
+    }
+
+    /// Coverage from the least coverage over the planes: itself, or its complement
+    /// when inverted (whose ramp is the same voxel, seen from the other side).
+    fn kept(&self, least: i64) -> i64 {
+        if self.inverse {
+            Q16 - least
+        } else {
+            least
+        }
+    }
+
     fn planes(&self) -> &[Plane] {
         self.planes.get(..self.len).unwrap_or_default()
     }
@@ -149,6 +182,7 @@ impl Clip {
     /// Coverage at index-space position `p`, given with `frac` fractional bits (at
     /// most 16; positions at most 2^13 voxels from the origin): Q16, 0 (cut away) to
     /// 65536 (kept), falling from one to the other over the voxel the plane crosses.
+    /// Inverted, its complement.
     pub fn coverage(&self, p: [i64; 3], frac: u32) -> u32 {
         let frac = frac.min(16);
         let mut cov = Q16;
@@ -157,7 +191,7 @@ impl Clip {
             let sigma = (dot >> frac) - pl.r;
             cov = cov.min((Q16 / 2 - sigma).clamp(0, Q16));
         }
-        cov as u32
+        self.kept(cov) as u32
     }
 
     /// Scales the opacity of the voxels of z slices `slices` of a volume of `grid` by
@@ -190,6 +224,7 @@ impl Clip {
                         cov = cov.min((Q16 / 2 - *s).clamp(0, Q16));
                         *s += pl.q[0];
                     }
+                    let cov = self.kept(cov);
                     if cov < Q16 {
                         let a = (v.opacity as i64 * cov + Q16 / 2) >> 16;
                         v.opacity = a as u8;
@@ -352,6 +387,49 @@ mod tests {
                 assert_eq!((w.opacity, w.normal), (a, normal), "case {case}, voxel {i}");
             }
         }
+    }
+
+    #[test]
+    fn inverted_planes_cut_away_the_corner_they_would_keep() {
+        let g = grid([8, 8, 8], [1.0; 3]);
+        // x ≤ 3.5 and z ≤ 3.5 kept; inverted, that corner is the hole.
+        let clip = Clip::NONE
+            .with_plane(&g, [1.0, 0.0, 0.0], 0.0)
+            .and_then(|c| c.with_plane(&g, [0.0, 0.0, 1.0], 0.0))
+            .unwrap();
+        let hole = clip.inverted();
+        assert!(hole.is_inverse() && !clip.is_inverse());
+        assert_eq!(hole.inverted(), clip);
+        for p in [
+            [0, 0, 0],
+            [3, 7, 3],
+            [4, 0, 0],
+            [0, 5, 6],
+            [7, 7, 7],
+            [2, 2, 5],
+        ] {
+            assert_eq!(hole.coverage(p, 0), 65536 - clip.coverage(p, 0), "{p:?}");
+        }
+        assert_eq!(hole.coverage([1, 1, 1], 0), 0);
+        assert_eq!(hole.coverage([1, 1, 6], 0), 65536);
+        // About the hole's face at x = 3.5: a quarter voxel inside it, a quarter kept;
+        // a quarter voxel outside, three quarters.
+        assert_eq!(hole.coverage([(3 << 8) + 64, 0, 0], 8), 16384);
+        assert_eq!(hole.coverage([(4 << 8) - 64, 0, 0], 8), 49152);
+        // apply agrees.
+        let mut out = [Voxel {
+            opacity: 255,
+            scalar: 0,
+            normal: 1,
+        }; 512];
+        hole.apply(&g, 0..8, &mut out).unwrap();
+        for (i, v) in out.iter().enumerate() {
+            let p = [i % 8, i / 8 % 8, i / 64].map(|c| c as i64);
+            let want = (255 * hole.coverage(p, 0) as u64 + (1 << 15)) >> 16;
+            assert_eq!(v.opacity as u64, want, "{p:?}");
+        }
+        // Nothing to invert without planes.
+        assert_eq!(Clip::NONE.inverted(), Clip::NONE);
     }
 
     #[test]

@@ -120,6 +120,9 @@ fuzz_target!(|data: &[u8]| {
         let normal = [tame(&mut b), tame(&mut b), tame(&mut b)];
         clip = clip.with_plane(&grid, normal, tame(&mut b)).unwrap_or(clip);
     }
+    if b.u8() & 1 == 1 {
+        clip = clip.inverted();
+    }
     // The voxels: what is left of the input, repeated.
     let rest = if b.0.is_empty() { &[0u8][..] } else { b.0 };
     let n = grid.voxel_count();

@@ -69,6 +69,8 @@ pub struct Case {
     pub crop: Option<([usize; 3], [usize; 3])>,
     /// Clipping planes `(normal, distance)` as [`RefView::clip`] takes them.
     pub clip: &'static [([f64; 3], f64)],
+    /// Inverse clipping ([`Clip::inverted`]).
+    pub clip_inverse: bool,
 }
 
 /// The lighting a case uses.
@@ -130,6 +132,7 @@ macro_rules! case {
             fov: None,
             crop: None,
             clip: &[],
+            clip_inverse: false,
         }
     };
 }
@@ -167,6 +170,14 @@ const HEAD_CLIP: Case = Case {
         25.0
     )
 };
+
+/// Three planes whose inverse takes out the head's corner toward the viewer of
+/// [`HEAD_CLIP`], reaching 8 mm past the centre along each axis.
+const CORNER: &[([f64; 3], f64)] = &[
+    ([-1.0, 0.0, 0.0], 8.0),
+    ([0.0, 1.0, 0.0], 8.0),
+    ([0.0, 0.0, -1.0], 8.0),
+];
 
 /// Thresholds: shear-warp classifies voxels before interpolating, the reference after,
 /// so surfaces that are sharp in the data (the hard-edged box, the unshaded sphere rims)
@@ -446,6 +457,21 @@ pub const CASES: &[Case] = &[
     Case {
         name: "head64_clip_oblique_iso",
         post: Some(PostMode::Isosurface(60.0)),
+        ..HEAD_CLIP
+    },
+    // A corner taken out of the head (inverse clipping: the region behind three planes
+    // is the hole), classified and post-classified.
+    Case {
+        name: "head64_clip_corner",
+        clip: CORNER,
+        clip_inverse: true,
+        ..HEAD_CLIP
+    },
+    Case {
+        name: "head64_clip_corner_post",
+        clip: CORNER,
+        clip_inverse: true,
+        post: Some(PostMode::PostClassified),
         ..HEAD_CLIP
     },
     Case {
@@ -813,9 +839,14 @@ fn classification(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Classific
 /// of it: the planes are placed about the centre both share).
 fn clip(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Clip {
     let grid = shearwarp_core::classify::Grid::new(dims, spacing).expect("grid");
-    case.clip.iter().fold(Clip::NONE, |c, &(n, d)| {
+    let clip = case.clip.iter().fold(Clip::NONE, |c, &(n, d)| {
         c.with_plane(&grid, n, d).expect("clipping plane")
-    })
+    });
+    if case.clip_inverse {
+        clip.inverted()
+    } else {
+        clip
+    }
 }
 
 /// Renders a classic (RLE) case from an encoded volume with `threads` threads.
@@ -891,6 +922,7 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         fov: case.fov,
         crop: case.crop,
         clip: case.clip.to_vec(),
+        clip_inverse: case.clip_inverse,
     };
     let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
     metrics::to_rgb8(&img)

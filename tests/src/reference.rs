@@ -64,6 +64,10 @@ pub struct RefView {
     /// volume's centre along it. Each ray's span ends exactly at the planes (a hard
     /// cut); the shadow march takes no opacity beyond them.
     pub clip: Vec<([f64; 3], f64)>,
+    /// Inverse clipping: the region behind every plane is cut away instead of kept.
+    /// Rays then skip the samples in it (the region is convex, so that is one interval
+    /// of each ray, hard-edged to the step).
+    pub clip_inverse: bool,
 }
 
 impl RefVolume {
@@ -244,6 +248,8 @@ struct Ctx<'a> {
     bounds: [[f64; 2]; 3],
     /// Clipping planes in index space: `(a, b)` with the kept side `a·p ≤ b`.
     planes: Vec<([f64; 3], f64)>,
+    /// The planes cut away the region they would keep ([`RefView::clip_inverse`]).
+    inverse: bool,
 }
 
 impl Ctx<'_> {
@@ -298,9 +304,20 @@ impl Ctx<'_> {
         }
     }
 
-    /// Whether index-space point `p` lies beyond a clipping plane.
+    /// Whether index-space point `p` is cut away: beyond a clipping plane, or inverted,
+    /// behind all of them.
     fn clipped(&self, p: [f64; 3]) -> bool {
-        self.planes.iter().any(|&(a, b)| dot(a, p) > b)
+        if self.inverse {
+            !self.planes.is_empty() && self.planes.iter().all(|&(a, b)| dot(a, p) <= b)
+        } else {
+            self.planes.iter().any(|&(a, b)| dot(a, p) > b)
+        }
+    }
+
+    /// Whether a ray's sample at `p` is cut away by inverse clipping (the span already
+    /// leaves out what planes cut away otherwise).
+    fn skipped(&self, p: [f64; 3]) -> bool {
+        self.inverse && self.clipped(p)
     }
 
     fn to_index(&self, p: [f64; 3]) -> [f64; 3] {
@@ -334,8 +351,9 @@ impl Ctx<'_> {
                 t1 = t1.min(ta.max(tb));
             }
         }
-        // Each plane `a·(origin + t·dir) ≤ b` bounds t on one side.
-        for &(a, b) in &self.planes {
+        // Each plane `a·(origin + t·dir) ≤ b` bounds t on one side (inverted, the
+        // samples are skipped one by one instead).
+        for &(a, b) in self.planes.iter().filter(|_| !self.inverse) {
             let (at, slope) = (dot(a, origin), dot(a, dir_idx));
             if slope.abs() < 1e-12 {
                 if at > b + EPS {
@@ -443,6 +461,10 @@ impl Ctx<'_> {
                 let mut prev: Option<([f64; 3], f64)> = None;
                 for k in 0..count {
                     let p = point(k);
+                    if self.skipped(p) {
+                        prev = None;
+                        continue;
+                    }
                     let v = self.scalar(&cell(self.vol.dims, p));
                     if let Some((pp, pv)) = prev {
                         if (pv - iso) * (v - iso) <= 0.0 && pv != v {
@@ -462,7 +484,7 @@ impl Ctx<'_> {
             }
             RefMode::Mip => {
                 let mut max = f64::NEG_INFINITY;
-                for k in 0..count {
+                for k in (0..count).filter(|&k| !self.skipped(point(k))) {
                     max = max.max(self.scalar(&cell(self.vol.dims, point(k))));
                 }
                 let (lo, hi) = self.vol.range;
@@ -475,6 +497,9 @@ impl Ctx<'_> {
                 let mut acc = [0.0f64; 3];
                 let mut acc_a = 0.0f64;
                 for k in 0..count {
+                    if self.skipped(point(k)) {
+                        continue;
+                    }
                     let c = cell(self.vol.dims, point(k));
                     let v = self.scalar(&c);
                     let a = lookup(&self.opacity, v)[0].clamp(0.0, 1.0);
@@ -600,6 +625,7 @@ pub fn render_reference(
                 (a, dist + dot(a, c))
             })
             .collect(),
+        inverse: view.clip_inverse,
         perspective: view.fov.map(|fov| {
             let half = fov.to_radians() / 2.0;
             (0.5 * diag / half.sin(), 0.5 * w.min(h) as f64 / half.tan())
@@ -682,6 +708,7 @@ mod tests {
             fov: None,
             crop: None,
             clip: Vec::new(),
+            clip_inverse: false,
         }
     }
 

@@ -310,6 +310,7 @@ fn reference_image(
             fov: None,
             crop: None,
             clip: Vec::new(),
+            clip_inverse: false,
         },
     );
     let img = metrics::to_rgb8(&img);

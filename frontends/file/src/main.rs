@@ -283,6 +283,10 @@ struct RenderOpts {
     /// encoding; post/preint/iso apply them per frame.
     #[arg(long, value_name = "NX,NY,NZ[:OFFSET]", allow_hyphen_values = true)]
     clip: Vec<String>,
+    /// Inverse clipping: cut away the region behind every --clip plane (which they
+    /// otherwise keep) and keep the rest, to take a wedge or a corner out of the volume.
+    #[arg(long)]
+    clip_invert: bool,
 }
 
 /// A bad command-line value or option combination (exit code 2).
@@ -422,6 +426,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             || o.window.is_some()
             || o.crop.is_some()
             || !o.clip.is_empty()
+            || o.clip_invert
             || o.lod > 0
         {
             return Err(usage(format!(
@@ -453,7 +458,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             gradient: tf.gradient.clone(),
             min_opacity: o.min_opacity,
             crop,
-            clip: clip_for(&planes, raw.dims, raw.spacing)?,
+            clip: clip_for(o, &planes, raw.dims, raw.spacing)?,
         };
         let enc = if o.lod > 0 {
             if o.lod > 8 {
@@ -469,7 +474,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
                 })?);
             }
             // The planes keep their place about the centre, which the level shares.
-            class.clip = clip_for(&planes, level.dims, level.spacing)?;
+            class.clip = clip_for(o, &planes, level.dims, level.spacing)?;
             scene::encode(&level, &class)?.as_level(&full)
         } else {
             scene::encode(&raw, &class)?
@@ -686,6 +691,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let cut = post::Cut {
         crop: crop_of(o, raw.dims)?,
         clip: clip_for(
+            o,
             &clip_planes(o, raw.dims, raw.spacing)?,
             raw.dims,
             raw.spacing,
@@ -798,13 +804,18 @@ fn clip_planes(
 }
 
 /// The clip of `planes` ([`clip_planes`]) for a grid of `dims` and `spacing`: the
-/// volume's own, or a level of it (which has the same centre).
+/// volume's own, or a level of it (which has the same centre); inverted with
+/// `--clip-invert`.
 fn clip_for(
+    o: &RenderOpts,
     planes: &[PlaneSpec],
     dims: [usize; 3],
     spacing: [f64; 3],
 ) -> Result<Clip, Box<dyn Error>> {
     if planes.is_empty() {
+        if o.clip_invert {
+            return Err(usage("--clip-invert needs at least one --clip plane"));
+        }
         return Ok(Clip::NONE);
     }
     let grid = shearwarp_core::classify::Grid::new(dims, spacing)?;
@@ -812,7 +823,7 @@ fn clip_for(
     for &(n, d) in planes {
         clip = clip.with_plane(&grid, n, d)?;
     }
-    Ok(clip)
+    Ok(if o.clip_invert { clip.inverted() } else { clip })
 }
 
 /// One `--clip NX,NY,NZ[:OFFSET]`: the normal, and the offset (−1..=1, default 0).

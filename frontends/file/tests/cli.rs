@@ -161,6 +161,15 @@ fn clipping_planes_from_the_command_line() {
             "{mode}: the plane and the box"
         );
         assert!(plane != plain, "{mode}: the axis plane cuts");
+        // One plane inverted keeps what the plane turned round keeps, to the bit.
+        let inverted = [&m[..], &["--clip", "1,0.5,0.8:0.2", "--clip-invert"]].concat();
+        let turned = [&m[..], &["--clip=-1,-0.5,-0.8:-0.2"]].concat();
+        let a = run(&inverted, &format!("{mode}-inverted"));
+        assert!(
+            a == run(&turned, &format!("{mode}-turned")),
+            "{mode}: inverted"
+        );
+        assert!(a != plain, "{mode}: the inverted plane cuts");
     }
     for mode in ["preint", "iso"] {
         let m = ["--mode", mode, "--iso", "60"];
@@ -789,6 +798,10 @@ fn bad_inputs_exit_2_with_one_line() {
         a.extend(s(extra));
         cases.push((a, want.into()));
     }
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--clip-invert"]),
+        "--clip-invert needs at least one --clip plane".into(),
+    ));
     cases.push((
         s(&["render", &swv, "-o", &o, "--clip", "1,0,0"]),
         "whole.swv: opacity is baked into a .swv file".into(),

@@ -129,6 +129,11 @@ fn run() -> Result<(), Error> {
     black_box(crop.contains(black_box([0, 0, 0])));
     // Clipping planes over the same records.
     let clip = Clip::NONE.with_plane(&grid, black_box([1.0, 0.5, 0.0]), black_box(0.5))?;
+    let clip = if black_box(true) {
+        clip.inverted()
+    } else {
+        clip
+    };
     clip.apply(&grid, black_box(0..0), some(&mut dense))?;
     black_box(normal::decode(normal::encode(
         black_box(1),
