@@ -48,8 +48,8 @@ grep -q "^summary: preview frames [1-9]" "$out/view.log" || { echo "no preview f
 args=$(sed -n 's/^cli-args: //p' "$out/view.log" | tail -n 1)
 [ -n "$args" ] || { echo "the viewer printed no cli-args"; cat "$out/view.log"; exit 1; }
 case "$args" in
-    *--shadows*--depth-cue*) ;;
-    *) echo "the final frame should have shadows and depth cueing: $args"; exit 1 ;;
+    *--shadows*--depth-cue*--clip-invert*) ;;
+    *) echo "the final frame should have shadows, depth cueing and a corner cut: $args"; exit 1 ;;
 esac
 echo "reference: shearwarp render $args -o $out/file.png"
 eval "\"$bin/shearwarp\" render $args -o \"$out/file.png\""

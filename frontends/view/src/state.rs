@@ -54,6 +54,11 @@ pub enum Cut {
     /// ([`Clip::offset_distance`]): through the centre to start with. The plane stays
     /// put as the view turns, so the cut face can be looked at from the side.
     Facing { normal: [f64; 3], offset: i32 },
+    /// The corner of the volume toward the viewer when the key was pressed taken out:
+    /// the region behind three axis planes, inverted ([`Clip::inverted`]), `signs` the
+    /// side of the centre the corner lies on along x, y, z, and each plane `offset`
+    /// steps (0..=[`CUT_STEPS`]) of the way past the centre.
+    Corner { signs: [i8; 3], offset: i32 },
 }
 
 impl Cut {
@@ -75,7 +80,11 @@ impl Cut {
                 normal: shearwarp_core::view::rotation(rotate_x, rotate_y)[2],
                 offset: 0,
             },
-            Cut::Facing { .. } => Cut::Whole,
+            Cut::Facing { normal, .. } => Cut::Corner {
+                signs: normal.map(|v| if v < 0.0 { -1 } else { 1 }),
+                offset: 0,
+            },
+            Cut::Corner { .. } => Cut::Whole,
         }
     }
 
@@ -91,7 +100,21 @@ impl Cut {
                 normal,
                 offset: (offset + steps).clamp(-CUT_STEPS, CUT_STEPS),
             },
+            // A larger corner cuts more away.
+            Cut::Corner { signs, offset } => Cut::Corner {
+                signs,
+                offset: (offset - steps).clamp(0, CUT_STEPS),
+            },
         }
+    }
+
+    /// The corner's three planes: each axis's normal pointing away from the corner.
+    fn corner_planes(signs: [i8; 3]) -> [[f64; 3]; 3] {
+        let mut n = [[0.0; 3]; 3];
+        for (a, (row, s)) in n.iter_mut().zip(signs).enumerate() {
+            row[a] = -f64::from(s);
+        }
+        n
     }
 
     /// The plane's offset as `shearwarp render --clip` takes it (steps of a twentieth
@@ -107,6 +130,14 @@ impl Cut {
             Cut::Facing { normal, offset } => {
                 let d = Clip::offset_distance(full, normal, Cut::offset(offset));
                 Clip::NONE.with_plane(grid, normal, d)
+            }
+            Cut::Corner { signs, offset } => {
+                let mut clip = Clip::NONE;
+                for n in Cut::corner_planes(signs) {
+                    let d = Clip::offset_distance(full, n, Cut::offset(offset));
+                    clip = clip.with_plane(grid, n, d)?;
+                }
+                Ok(clip.inverted())
             }
             _ => Ok(Clip::NONE),
         }
@@ -137,6 +168,12 @@ impl Cut {
         {
             return Some(format!("--clip={x},{y},{z}:{}", Cut::offset(offset)));
         }
+        if let Cut::Corner { signs, offset } = self {
+            let o = Cut::offset(offset);
+            let planes =
+                Cut::corner_planes(signs).map(|[x, y, z]| format!("--clip={x},{y},{z}:{o}"));
+            return Some(format!("{} --clip-invert", planes.join(" ")));
+        }
         let c = self.crop(dims)?;
         let r = |a: usize| format!("{}:{}", c.lo()[a], c.hi()[a]);
         Some(format!("--crop {},{},{}", r(0), r(1), r(2)))
@@ -152,6 +189,7 @@ impl Cut {
                 100 * keep / CUT_STEPS
             )),
             Cut::Facing { offset, .. } => Some(format!("plane at {:+.2}", Cut::offset(offset))),
+            Cut::Corner { offset, .. } => Some(format!("corner out, {:+.2}", Cut::offset(offset))),
         }
     }
 }
@@ -318,7 +356,7 @@ pub const KEYS: &[(&str, &str, ViewKey)] = &[
     ),
     (
         "c",
-        "C: cut the volume open: whole, lower half in x, in y, in z, the half facing you",
+        "C: cut the volume open: whole, lower half in x, in y, in z, the half facing you, the corner facing you",
         ViewKey::Cut,
     ),
     (
@@ -565,7 +603,7 @@ mod tests {
         let mut v = home;
         let dims = [64, 65, 1];
         let mut seen = Vec::new();
-        for _ in 0..5 {
+        for _ in 0..6 {
             seen.push(v.cut.spec(dims));
             let mut w = v;
             apply(&mut w, &home, Input::Key(ViewKey::Cut), [100, 100]);
@@ -580,6 +618,8 @@ mod tests {
             Some("--crop 0:63,0:64,0:0"),
             // Seen from rotate-x −90 (looking along +y), the viewer is toward −y.
             Some("--clip=-0,-1,0:0"),
+            // The corner toward it: x and z at or above the centre, y below.
+            Some("--clip=-1,0,0:0 --clip=0,1,0:0 --clip=0,0,-1:0 --clip-invert"),
         ];
         assert_eq!(seen, want.map(|s| s.map(String::from)));
         // The plane through the centre facing −y keeps the voxels of larger y.
@@ -632,6 +672,20 @@ mod tests {
         assert_eq!(clip, want);
         press(&mut v, ViewKey::CutLess, 50);
         assert_eq!(v.cut.spec(dims).unwrap(), "--clip=-0,-1,0:1");
+        // The corner grows as F cuts more, from the centre.
+        press(&mut v, ViewKey::Cut, 1);
+        press(&mut v, ViewKey::CutLess, 1);
+        press(&mut v, ViewKey::CutMore, 2);
+        let corner = "--clip=-1,0,0:0.1 --clip=0,1,0:0.1 --clip=0,0,-1:0.1 --clip-invert";
+        assert_eq!(v.cut.spec(dims).unwrap(), corner);
+        assert_eq!(v.cut.describe().unwrap(), "corner out, +0.10");
+        // Its clip takes out the voxels at x ≥ 31.5 − 3.2, y ≤ 32 + 3.25, z ≥ 4.5 − 0.5.
+        let clip = v.cut.clip(&full, &full).unwrap();
+        assert!(clip.is_inverse());
+        assert_eq!(clip.coverage([40, 20, 8], 0), 0);
+        assert_eq!(clip.coverage([20, 20, 8], 0), 1 << 16);
+        assert_eq!(clip.coverage([40, 40, 8], 0), 1 << 16);
+        assert_eq!(clip.coverage([40, 20, 2], 0), 1 << 16);
     }
 
     #[test]
