@@ -474,6 +474,16 @@ pub const CASES: &[Case] = &[
         post: Some(PostMode::PostClassified),
         ..HEAD_CLIP
     },
+    // A maximum intensity projection of the cut head: the brightest voxel along each
+    // ray of what is left.
+    Case {
+        name: "head64_clip_oblique_mip",
+        opacity: MIP_OPACITY,
+        color: GREY,
+        shading: false,
+        mode: Mode::Mip,
+        ..HEAD_CLIP
+    },
     Case {
         name: "head64_clip_slab_persp45",
         clip: &[([1.0, 0.5, 0.8], 6.0), ([-1.0, -0.5, -0.8], 6.0)],
