@@ -104,8 +104,7 @@ fuzz_target!(|input: &[u8]| {
             opacity: vec![(lo, 0.0), (hi, 1.0)],
             gradient: None,
             min_opacity: 0.0,
-            crop: None,
-            clip: shearwarp_core::clip::Clip::NONE,
+            cut: scene::Cut::NONE,
         };
         // Spacing the core refuses (e.g. > 1e6) is an error, never a panic.
         let _ = scene::encode(&vol, &class).map(|e| e.visible_voxels());

@@ -240,8 +240,7 @@ fn opacity_correction_keeps_a_translucent_cube_equally_bright() {
         opacity: vec![(0.0, alpha)],
         gradient: None,
         min_opacity: 0.0,
-        crop: None,
-        clip: shearwarp_core::clip::Clip::NONE,
+        cut: scene::Cut::NONE,
     };
     let enc = scene::encode(&raw, &class).unwrap();
     let look = Look {

@@ -796,12 +796,7 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
         };
         let cam = camera(case);
         let mut r = shearwarp_file::post::PostRenderer::with_threads(&vol, threads);
-        let cut = shearwarp_file::post::Cut {
-            crop: case
-                .crop
-                .map(|(lo, hi)| Crop::new(lo, hi, raw.dims).expect("crop")),
-            clip: clip(case, raw.dims, raw.spacing),
-        };
+        let cut = cut(case, raw.dims, raw.spacing);
         let frame = r
             .render(&vol, mode, case.opacity, &look, &cam, cut)
             .expect("render");
@@ -838,6 +833,14 @@ fn classification(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Classific
         opacity: case.opacity.to_vec(),
         gradient: None,
         min_opacity: 0.0,
+        cut: cut(case, dims, spacing),
+    }
+}
+
+/// A case's crop box and clipping planes for a volume of `dims` voxels spaced `spacing`
+/// apart.
+fn cut(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> scene::Cut {
+    scene::Cut {
         crop: case
             .crop
             .map(|(lo, hi)| Crop::new(lo, hi, dims).expect("crop")),
@@ -885,11 +888,11 @@ pub fn render_level(case: &Case, raw: &RawVolume, level: usize) -> Vec<[u8; 3]> 
     let (lod, _) = scene::lod(raw, level).expect("level");
     let full = shearwarp_core::classify::Grid::new(raw.dims, raw.spacing).expect("grid");
     let mut class = classification(case, raw.dims, raw.spacing);
-    class.crop = class.crop.map(|c| {
+    class.cut.crop = class.cut.crop.map(|c| {
         c.at_level(raw.dims, lod.dims, 1 << level)
             .expect("crop at the level")
     });
-    class.clip = clip(case, lod.dims, lod.spacing);
+    class.cut.clip = clip(case, lod.dims, lod.spacing);
     let enc = scene::encode(&lod, &class).expect("encode").as_level(&full);
     render_encoded(case, &enc, 1, Isa::detect())
 }

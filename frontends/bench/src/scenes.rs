@@ -82,8 +82,7 @@ impl Appearance {
             opacity: self.opacity.clone(),
             gradient: None,
             min_opacity: self.min_opacity,
-            crop: None,
-            clip: shearwarp_core::clip::Clip::NONE,
+            cut: scene::Cut::NONE,
         }
     }
 

@@ -457,8 +457,10 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             opacity: tf.opacity.clone(),
             gradient: tf.gradient.clone(),
             min_opacity: o.min_opacity,
-            crop,
-            clip: clip_for(o, &planes, raw.dims, raw.spacing)?,
+            cut: scene::Cut {
+                crop,
+                clip: clip_for(o, &planes, raw.dims, raw.spacing)?,
+            },
         };
         let enc = if o.lod > 0 {
             if o.lod > 8 {
@@ -469,12 +471,12 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             if let (Some(c), Some(s)) = (crop, &o.crop) {
                 // The box in the level's voxels: those centred in its cells.
                 let at = c.at_level(raw.dims, level.dims, 1 << o.lod);
-                class.crop = Some(at.ok_or_else(|| {
+                class.cut.crop = Some(at.ok_or_else(|| {
                     usage(format!("--crop '{s}': holds no voxel of --lod {}", o.lod))
                 })?);
             }
             // The planes keep their place about the centre, which the level shares.
-            class.clip = clip_for(o, &planes, level.dims, level.spacing)?;
+            class.cut.clip = clip_for(o, &planes, level.dims, level.spacing)?;
             scene::encode(&level, &class)?.as_level(&full)
         } else {
             scene::encode(&raw, &class)?
@@ -670,7 +672,7 @@ struct Dense {
     opacity: Vec<(f64, f64)>,
     look: Look,
     camera: Camera,
-    cut: post::Cut,
+    cut: scene::Cut,
 }
 
 fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn Error>> {
@@ -688,7 +690,7 @@ fn prepare_dense(path: &Path, o: &RenderOpts, out: Out) -> Result<Dense, Box<dyn
     let camera = camera_of(o)?;
     let threads = thread_count(o)?;
     let (raw, tf) = load_with_tf(path, o, out)?;
-    let cut = post::Cut {
+    let cut = scene::Cut {
         crop: crop_of(o, raw.dims)?,
         clip: clip_for(
             o,

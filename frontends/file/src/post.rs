@@ -1,12 +1,10 @@
 //! Unclassified volumes held in memory for post-classified, pre-integrated and
 //! isosurface rendering ([`shearwarp_core::postclass`]).
 
-use crate::scene::{opacity_points, Look};
+use crate::scene::{opacity_points, Cut, Look};
 use crate::volume::{RawVolume, Voxels};
 use shearwarp_core::classify::{self, Grid, OpacityTf, Scalars, Voxel};
-use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{Intermediate, Rgba};
-use shearwarp_core::crop::Crop;
 use shearwarp_core::opaque;
 use shearwarp_core::postclass;
 use shearwarp_core::shade::ShadeTable;
@@ -57,16 +55,6 @@ impl DenseVolume {
             0.0
         }
     }
-}
-
-/// What a frame leaves out of a [`DenseVolume`]: samples outside a crop box's cells,
-/// and samples faded by their coverage by clipping planes, both made for the volume.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Cut {
-    /// The box ([`shearwarp_core::crop`]), or `None` for the whole volume.
-    pub crop: Option<Crop>,
-    /// The planes ([`shearwarp_core::clip`]).
-    pub clip: Clip,
 }
 
 /// Workspace and tables for rendering a [`DenseVolume`], on one thread or several.

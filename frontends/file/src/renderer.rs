@@ -774,8 +774,7 @@ mod tests {
             opacity: vec![(0.0, 0.0), (60.0, 0.0), (200.0, 0.8)],
             gradient: None,
             min_opacity: 0.02,
-            crop: None,
-            clip: shearwarp_core::clip::Clip::NONE,
+            cut: crate::scene::Cut::NONE,
         };
         let enc = encode(&raw, &class).unwrap();
         let look = Look {

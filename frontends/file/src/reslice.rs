@@ -10,10 +10,8 @@
 //! The result is the same, byte for byte (tested against [`rle::encode`]).
 
 use crate::bigbuf;
-use crate::scene::{transpose, AxisArrays, Strided};
+use crate::scene::{transpose, AxisArrays, Cut, Strided};
 use shearwarp_core::classify::{self, Grid, Scalars, Voxel};
-use shearwarp_core::clip::Clip;
-use shearwarp_core::crop::Crop;
 use shearwarp_core::rle::{self, Axis, RleAxis, ScanIndex};
 use shearwarp_core::Error;
 
@@ -27,10 +25,8 @@ pub struct Classifier<'a> {
     pub gradient_table: Option<&'a [u16; 256]>,
     /// Voxels at or below this opacity are transparent ([`rle::is_visible`]).
     pub threshold: u8,
-    /// Voxels outside this box are made transparent as they are classified.
-    pub crop: Option<Crop>,
-    /// Voxels are faded by their coverage by these planes as they are classified.
-    pub clip: Clip,
+    /// What is cut away of the voxels as they are classified.
+    pub cut: Cut,
 }
 
 /// Slices classified at a time, which stay in the cache between the classifier writing
@@ -90,10 +86,7 @@ fn encode_z_part(c: &Classifier<'_>, zs: core::ops::Range<usize>) -> Result<Axis
         let d = &mut dense[..(z1 - z0) * plane];
         let (o, g, t) = (c.opacity_table, c.gradient_table, Some(c.threshold));
         classify::classify_slices(c.grid, c.scalars, o, g, t, z0..z1, d)?;
-        if let Some(crop) = &c.crop {
-            crop.apply(c.grid, z0..z1, d)?;
-        }
-        c.clip.apply(c.grid, z0..z1, d)?;
+        c.cut.apply(c.grid, z0..z1, d)?;
         // The slab as a volume of its own: the encoder reads only its dimensions and
         // layout.
         let slab = Grid::new([nx, ny, z1 - z0], c.grid.spacing)?.with_layout(c.grid.layout());
@@ -309,6 +302,8 @@ pub fn encode_all(c: &Classifier<'_>, threads: usize) -> Result<[AxisArrays; 3],
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shearwarp_core::clip::Clip;
+    use shearwarp_core::crop::Crop;
     use shearwarp_core::rle::Layout;
 
     /// The copies `rle::encode` makes of the dense classified volume.
@@ -316,10 +311,7 @@ mod tests {
         let mut dense = vec![Voxel::default(); c.grid.voxel_count()];
         let (o, g, t) = (c.opacity_table, c.gradient_table, Some(c.threshold));
         classify::classify_above(c.grid, c.scalars, o, g, t, &mut dense).unwrap();
-        if let Some(crop) = &c.crop {
-            crop.apply(c.grid, 0..c.grid.dims[2], &mut dense).unwrap();
-        }
-        c.clip.apply(c.grid, 0..c.grid.dims[2], &mut dense).unwrap();
+        c.cut.apply(c.grid, 0..c.grid.dims[2], &mut dense).unwrap();
         Axis::ALL.map(|axis| {
             let sz = rle::measure(&dense, c.grid, axis, c.threshold).unwrap();
             let mut a = (
@@ -410,8 +402,7 @@ mod tests {
                     opacity_table: &ramp,
                     gradient_table,
                     threshold,
-                    crop,
-                    clip,
+                    cut: Cut { crop, clip },
                 };
                 for bits in 0..8 {
                     let g = grid.with_layout(Layout::from_bits(bits).unwrap());

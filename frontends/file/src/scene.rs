@@ -23,13 +23,43 @@ pub struct Classification {
     pub gradient: Option<Vec<(f64, f64)>>,
     /// Voxels with opacity at or below this (0..1) are stored as transparent.
     pub min_opacity: f64,
-    /// Voxels outside this box (of the volume classified) are stored as transparent
-    /// ([`shearwarp_core::crop`]).
+    /// What is cut away of the volume classified: its voxels are made transparent, or
+    /// faded, as they are classified, and stored as transparent where nothing is left.
+    pub cut: Cut,
+}
+
+/// What is cut away of a volume: the voxels (or samples) outside a crop box's cells
+/// ([`shearwarp_core::crop`]), and those faded by their coverage by clipping planes
+/// ([`shearwarp_core::clip`]), both made for the volume (or level of it) they cut.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Cut {
+    /// The box, or `None` for the whole volume.
     pub crop: Option<Crop>,
-    /// Voxels are faded by their coverage by these planes (made for the volume
-    /// classified), and stored as transparent where none is left
-    /// ([`shearwarp_core::clip`]).
+    /// The planes.
     pub clip: Clip,
+}
+
+impl Cut {
+    /// Nothing cut away.
+    pub const NONE: Cut = Cut {
+        crop: None,
+        clip: Clip::NONE,
+    };
+
+    /// Cuts the classified records of z slices `slices` of a volume of `grid`, held in
+    /// `out` from its start: the box's outside made transparent, then the planes'
+    /// coverage applied.
+    pub fn apply(
+        &self,
+        grid: &Grid,
+        slices: core::ops::Range<usize>,
+        out: &mut [Voxel],
+    ) -> Result<(), Error> {
+        if let Some(crop) = &self.crop {
+            crop.apply(grid, slices.clone(), out)?;
+        }
+        self.clip.apply(grid, slices, out)
+    }
 }
 
 /// How frames take voxels with a zero gradient (`--flat-voxels` of the CLI and the
@@ -125,8 +155,7 @@ pub fn encode_threads(
         opacity_table: &table,
         gradient_table: gtable.as_ref(),
         threshold,
-        crop: class.crop,
-        clip: class.clip,
+        cut: class.cut,
     };
     let [x, y, z] = reslice::encode_all(&classifier, threads)?;
     let runs = [x.0, y.0, z.0];

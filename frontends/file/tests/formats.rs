@@ -68,8 +68,7 @@ fn render(v: &RawVolume) -> Vec<[u8; 4]> {
         opacity: vec![(lo + 0.2 * (hi - lo), 0.0), (hi, 0.6)],
         gradient: None,
         min_opacity: 0.02,
-        crop: None,
-        clip: shearwarp_core::clip::Clip::NONE,
+        cut: scene::Cut::NONE,
     };
     let enc = scene::encode(v, &class).unwrap();
     let look = Look {

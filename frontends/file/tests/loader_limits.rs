@@ -356,8 +356,7 @@ fn swv_reader_sizes_buffers_by_what_a_slice_can_hold() {
         opacity: vec![(0.0, 0.0), (255.0, 0.0)],
         gradient: None,
         min_opacity: 0.0,
-        crop: None,
-        clip: shearwarp_core::clip::Clip::NONE,
+        cut: scene::Cut::NONE,
     };
     let enc = scene::encode(&raw, &class).unwrap();
     let look = shearwarp_core::swv::Look {

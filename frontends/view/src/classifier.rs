@@ -78,11 +78,8 @@ impl Classifier {
             Voxels::U8(d) => relabel(&self.base, d, &table),
             Voxels::U16(d) => relabel(&self.base, d, &table),
         };
-        if let Some(crop) = &class.crop {
-            crop.apply(&self.grid, 0..self.grid.dims[2], &mut dense)?;
-        }
         class
-            .clip
+            .cut
             .apply(&self.grid, 0..self.grid.dims[2], &mut dense)?;
         Ok(dense)
     }
@@ -202,8 +199,7 @@ fn same(a: &Classification, b: &Classification) -> bool {
     a.opacity == b.opacity
         && a.min_opacity == b.min_opacity
         && a.gradient == b.gradient
-        && a.crop == b.crop
-        && a.clip == b.clip
+        && a.cut == b.cut
 }
 
 impl LevelRle {
@@ -345,8 +341,10 @@ mod tests {
                     opacity,
                     gradient: None,
                     min_opacity: [0.02, 0.0, 0.5, 0.0, 0.02][k],
-                    crop: if k == 4 { half } else { None },
-                    clip: shearwarp_core::clip::Clip::NONE,
+                    cut: scene::Cut {
+                        crop: if k == 4 { half } else { None },
+                        ..scene::Cut::NONE
+                    },
                 };
                 let mine = c.encode(&class).unwrap();
                 let mut theirs = scene::encode(&raw, &class).unwrap();
@@ -411,8 +409,7 @@ mod tests {
             opacity: vec![(lo, 0.0), (lo + 60.0, 0.7)],
             gradient: None,
             min_opacity: 0.02,
-            crop: None,
-            clip: shearwarp_core::clip::Clip::NONE,
+            cut: scene::Cut::NONE,
         };
         let (a, b) = (class(40.0), class(90.0));
         let mut level = c.encode(&a).unwrap();
@@ -473,8 +470,7 @@ mod tests {
             opacity: vec![(0.0, 1.0)],
             gradient: Some(vec![(0.0, 1.0)]),
             min_opacity: 0.0,
-            crop: None,
-            clip: shearwarp_core::clip::Clip::NONE,
+            cut: scene::Cut::NONE,
         };
         assert!(c.encode(&class).is_err());
         class.gradient = None;

@@ -143,8 +143,10 @@ impl Scene {
             opacity: preset::opacity_points(&PRESETS[view.preset], view.wl, self.range),
             gradient: None,
             min_opacity: self.settings.min_opacity,
-            crop,
-            clip: view.cut.clip(&self.grid()?, grid)?,
+            cut: scene::Cut {
+                crop,
+                clip: view.cut.clip(&self.grid()?, grid)?,
+            },
         })
     }
 

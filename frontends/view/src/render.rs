@@ -217,8 +217,7 @@ mod tests {
             opacity: vec![(0.0, 0.0), (60.0, 0.0), (120.0, 0.6), (255.0, 0.9)],
             gradient: None,
             min_opacity: 0.02,
-            crop: None,
-            clip: shearwarp_core::clip::Clip::NONE,
+            cut: scene::Cut::NONE,
         }
     }
 
