@@ -63,7 +63,7 @@ pub enum Cut {
 
 impl Cut {
     /// The next cut in the C key's cycle: whole, half in x, in y, in z, the half facing
-    /// a viewer at rotations `rotate_x`, `rotate_y`.
+    /// a viewer at rotations `rotate_x`, `rotate_y`, the corner facing that viewer.
     pub fn next(self, rotate_x: f64, rotate_y: f64) -> Cut {
         let half = CUT_STEPS / 2;
         match self {
@@ -108,13 +108,24 @@ impl Cut {
         }
     }
 
-    /// The corner's three planes: each axis's normal pointing away from the corner.
-    fn corner_planes(signs: [i8; 3]) -> [[f64; 3]; 3] {
-        let mut n = [[0.0; 3]; 3];
-        for (a, (row, s)) in n.iter_mut().zip(signs).enumerate() {
-            row[a] = -f64::from(s);
+    /// The planes' normals, their offset as `shearwarp render --clip` takes it, and
+    /// whether they are inverted; `None` without planes. A corner's planes are the
+    /// axes' normals pointing away from it.
+    fn planes(self) -> Option<(Vec<[f64; 3]>, f64, bool)> {
+        match self {
+            Cut::Facing { normal, offset } => Some((vec![normal], Cut::offset(offset), false)),
+            Cut::Corner { signs, offset } => {
+                let normals = (0..3)
+                    .map(|a| {
+                        let mut n = [0.0; 3];
+                        n[a] = -f64::from(signs[a]);
+                        n
+                    })
+                    .collect();
+                Some((normals, Cut::offset(offset), true))
+            }
+            _ => None,
         }
-        n
     }
 
     /// The plane's offset as `shearwarp render --clip` takes it (steps of a twentieth
@@ -126,21 +137,14 @@ impl Cut {
     /// The clipping plane on a level's grid `grid` of the volume whose grid is `full`
     /// (the plane is placed on the full volume; a level shares its centre), or none.
     pub fn clip(self, full: &Grid, grid: &Grid) -> Result<Clip, shearwarp_core::Error> {
-        match self {
-            Cut::Facing { normal, offset } => {
-                let d = Clip::offset_distance(full, normal, Cut::offset(offset));
-                Clip::NONE.with_plane(grid, normal, d)
-            }
-            Cut::Corner { signs, offset } => {
-                let mut clip = Clip::NONE;
-                for n in Cut::corner_planes(signs) {
-                    let d = Clip::offset_distance(full, n, Cut::offset(offset));
-                    clip = clip.with_plane(grid, n, d)?;
-                }
-                Ok(clip.inverted())
-            }
-            _ => Ok(Clip::NONE),
+        let Some((normals, offset, inverse)) = self.planes() else {
+            return Ok(Clip::NONE);
+        };
+        let mut clip = Clip::NONE;
+        for n in normals {
+            clip = clip.with_plane(grid, n, Clip::offset_distance(full, n, offset))?;
         }
+        Ok(if inverse { clip.inverted() } else { clip })
     }
 
     /// The box of a volume of `dims`, or `None` for the whole.
@@ -161,18 +165,15 @@ impl Cut {
     /// volume of `dims`. The normal prints as its shortest round-trip decimals, so the
     /// command's plane is this one to the bit.
     pub fn spec(self, dims: [usize; 3]) -> Option<String> {
-        if let Cut::Facing {
-            normal: [x, y, z],
-            offset,
-        } = self
-        {
-            return Some(format!("--clip={x},{y},{z}:{}", Cut::offset(offset)));
-        }
-        if let Cut::Corner { signs, offset } = self {
-            let o = Cut::offset(offset);
-            let planes =
-                Cut::corner_planes(signs).map(|[x, y, z]| format!("--clip={x},{y},{z}:{o}"));
-            return Some(format!("{} --clip-invert", planes.join(" ")));
+        if let Some((normals, o, inverse)) = self.planes() {
+            let mut args: Vec<String> = normals
+                .iter()
+                .map(|[x, y, z]| format!("--clip={x},{y},{z}:{o}"))
+                .collect();
+            if inverse {
+                args.push("--clip-invert".into());
+            }
+            return Some(args.join(" "));
         }
         let c = self.crop(dims)?;
         let r = |a: usize| format!("{}:{}", c.lo()[a], c.hi()[a]);
@@ -220,7 +221,7 @@ pub struct ViewState {
     /// Perspective projection (the field of view is a setting); depth cueing and
     /// shadows are parallel-only and left out while it is on.
     pub perspective: bool,
-    /// The crop box the volume is cut open by.
+    /// How the volume is cut open (the C key).
     pub cut: Cut,
 }
 
