@@ -86,7 +86,7 @@ impl Clip {
         if self.len >= MAX_PLANES {
             return bad("clip: more than six planes");
         }
-        let len = libm::sqrt(normal.iter().map(|n| n * n).sum::<f64>());
+        let len = length(normal);
         if !(len.is_finite() && len > 1e-12) {
             return bad("clip: a plane's normal is zero or not finite");
         }
@@ -122,7 +122,7 @@ impl Clip {
     /// of it, −1 none. A way to place planes that does not depend on the volume's size;
     /// give it the full volume's grid for every level of it. NaN for a zero normal.
     pub fn offset_distance(grid: &Grid, normal: [f64; 3], offset: f64) -> f64 {
-        let len = libm::sqrt(normal.iter().map(|n| n * n).sum::<f64>());
+        let len = length(normal);
         let half: f64 = (0..3)
             .map(|a| libm::fabs(normal[a] / len) * grid.dims[a] as f64 * grid.spacing[a] / 2.0)
             .sum();
@@ -237,6 +237,11 @@ impl Clip {
         }
         Ok(())
     }
+}
+
+/// The Euclidean length of `v`.
+fn length(v: [f64; 3]) -> f64 {
+    libm::sqrt(v.iter().map(|c| c * c).sum::<f64>())
 }
 
 #[cfg(test)]
