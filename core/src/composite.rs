@@ -109,6 +109,9 @@ pub struct SliceTables<'a> {
     pub ray_gain: Option<&'a crate::perspective::RayGain>,
     /// How flat voxels enter a sample's colour ([`FlatVoxels`]).
     pub flat_voxels: FlatVoxels,
+    /// Clipping planes in the view's roles, if any ([`crate::clip::Clip::permuted`]):
+    /// each voxel row is cut as it is shaded ([`crate::clip::RowCut`]).
+    pub clip: Option<&'a crate::clip::Clip>,
 }
 
 /// How voxels with an exactly zero gradient (plateaus of the data, shaded as
@@ -515,6 +518,13 @@ fn composite_rows<S: Shading>(
     // Row j is read by scanlines j + n_v (as the bottom row) and j + n_v + 1 (top).
     // In MIP no pixel becomes opaque, so every voxel is needed.
     let skip_opaque_voxels = tables.mode == Mode::Composite;
+    // Clipping planes cut each row as it is shaded (a branch a row without them).
+    let cut = tables.clip.and_then(|c| c.slice(k as i64));
+    let cut_row = |row: &mut Row<'_>, j: i64| {
+        if let Some(c) = &cut {
+            row.cut_all(&c.row(j, ni), tables.mode);
+        }
+    };
     {
         let need = Needed::lines(img, jt_lo + ov.n as i64, ou.n as i64);
         let need = skip_opaque_voxels.then_some(&need);
@@ -526,6 +536,7 @@ fn composite_rows<S: Shading>(
             kern,
             shading,
         );
+        cut_row(top, jt_lo);
     }
     // What open pixels read of the rows two rows ahead, by row index mod 4. A row whose
     // every voxel only closed pixels read is neither streamed into the cache nor walked:
@@ -621,6 +632,7 @@ fn composite_rows<S: Shading>(
                     kern,
                     shading,
                 );
+                cut_row(bot, jt + 1);
             }
             Reach::Some => {
                 let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
@@ -632,6 +644,7 @@ fn composite_rows<S: Shading>(
                     kern,
                     shading,
                 );
+                cut_row(bot, jt + 1);
             }
         }
         let v = jt + ov.n as i64 + 1;
@@ -718,6 +731,7 @@ fn composite_slice_supersampled(
     let (mut top, mut bot) = (&mut r0, &mut r1);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let shading = Way::of(tables, shadow, scale);
+    let cut = tables.clip.and_then(|c| c.slice(k as i64));
     let width = img.width;
     let row_of = |j: i64| slice.row(j);
     // Scanlines reading rows jt and jt + 1 composite something only for jt from the row
@@ -743,6 +757,9 @@ fn composite_slice_supersampled(
             let fill = |row: &mut Row<'_>, r, j, vs| {
                 let place = (tu, ss, ni);
                 fill_supersampled(row, r, j, img, vs, place, tables, kern, &shading);
+                if let Some(c) = &cut {
+                    row.cut_all(&c.row(j, ni), tables.mode);
+                }
             };
             if jt == held + 1 {
                 core::mem::swap(&mut top, &mut bot);
@@ -1374,6 +1391,7 @@ impl PlainTables {
             shade0: None,
             ray_gain: None,
             flat_voxels: FlatVoxels::Excluded,
+            clip: None,
         }
     }
 }
@@ -1531,6 +1549,7 @@ mod tests {
                 shade0: None,
                 ray_gain: None,
                 flat_voxels: FlatVoxels::Excluded,
+                clip: None,
             };
             let (mut fast, mut slow) = (start, start);
             // Some pixels already opaque: both kernels must leave them alone. In a third

@@ -26,6 +26,7 @@
 //!
 //! ```
 //! use shearwarp_core::classify::{self, ColorTf, Grid, OpacityTf, Scalars, Voxel};
+//! use shearwarp_core::clip::Clip;
 //! use shearwarp_core::composite::{self, Mode};
 //! use shearwarp_core::render::{render, Settings, StaticWorkspace};
 //! use shearwarp_core::rle::{self, Axis, ScanIndex};
@@ -80,6 +81,7 @@
 //!     depth_cue: None,
 //!     shadows: false,
 //!     flat_voxels: Default::default(),
+//!     clip: Clip::NONE,
 //! };
 //! let camera = Camera { rotate_x: 20.0, rotate_y: 30.0, width: 32, height: 32 };
 //! let mut sink = FrameBuffer { width: 32, pixels: &mut image };
@@ -88,6 +90,16 @@
 //! // The ball covers the centre; the corners are background.
 //! assert!(image[16 * 32 + 16][3] > 200);
 //! assert_eq!(image[0], [0; 4]);
+//!
+//! // A clipping plane through the centre cuts away the half of the ball at x > 7.5,
+//! // as the slices are composited (moving it costs no encoding).
+//! let coverage = |img: &[[u8; 4]]| img.iter().map(|p| p[3] as u32).sum::<u32>();
+//! let whole = coverage(&image);
+//! let clip = Clip::NONE.with_plane(&grid, [1.0, 0.0, 0.0], 0.0)?;
+//! let mut sink = FrameBuffer { width: 32, pixels: &mut image };
+//! let cut = Settings { clip, ..settings };
+//! render(&mut volume, &camera, &cut, &mut work.workspace(), &mut sink)?;
+//! assert!(coverage(&image) < whole * 3 / 4);
 //! # Ok::<(), shearwarp_core::Error>(())
 //! ```
 #![no_std]

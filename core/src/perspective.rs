@@ -22,6 +22,7 @@
 //! for the pixel's own step.
 
 use crate::classify::Voxel;
+use crate::clip::RowCut;
 use crate::composite::{
     Intermediate, Kernels, Mode, Rgba, Row, Shading, SliceJob, SliceTables, Spans, Way,
 };
@@ -330,6 +331,7 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
     // lit, or the scalar in MIP (perspective frames have neither shadows nor depth
     // cueing).
     let shading = Way::of(tables, None, ONE);
+    let cut = tables.clip.and_then(|c| c.slice(k as i64));
     let ring_buf = ring_buf.get_mut(..ring * width).ok_or(too_small)?;
     if !clean {
         ring_buf.fill([0; 4]);
@@ -395,7 +397,8 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
                     None
                 };
                 row.clear();
-                let mut shader = Shader::new(runs, voxels, ni);
+                let row_cut = cut.as_ref().map(|c| c.row(j, ni));
+                let mut shader = Shader::new(runs, voxels, ni, row_cut);
                 let mut put =
                     |r: &mut Row<'_>, range| shader.upto(r, range, tables, j, kern, &shading);
                 slots[s] = filter_row(out, &mut row, &mut put, runs, &xs, readers.as_ref());
@@ -588,10 +591,12 @@ struct Shader<'r> {
     /// Voxels before this one are shaded or never needed.
     done: usize,
     ni: usize,
+    /// The clipping planes along the row, if any: each piece is cut as it is shaded.
+    cut: Option<RowCut>,
 }
 
 impl<'r> Shader<'r> {
-    fn new(runs: &'r [u8], voxels: &'r [Voxel], ni: usize) -> Self {
+    fn new(runs: &'r [u8], voxels: &'r [Voxel], ni: usize, cut: Option<RowCut>) -> Self {
         let mut s = Shader {
             spans: Spans::new(runs),
             voxels,
@@ -599,6 +604,7 @@ impl<'r> Shader<'r> {
             stored: 0,
             done: 0,
             ni,
+            cut,
         };
         s.advance();
         s
@@ -643,6 +649,9 @@ impl<'r> Shader<'r> {
             let (x, y) = (a.max(self.done), b.min(to));
             let src = self.voxels.get(base + (x - a)..).unwrap_or_default();
             row.shade(src, (x, y), t, j, k, shading);
+            if let Some(c) = &self.cut {
+                row.cut(c, (x, y), t.mode);
+            }
             self.done = y;
         }
         self.done = self.done.max(to);
@@ -783,7 +792,7 @@ mod tests {
             eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
             let mut lazy_buf = [[3u16; 4]; NI + 2];
             let mut lazy = Row::new(&mut lazy_buf, false);
-            let mut shader = Shader::new(&runs, &voxels, NI);
+            let mut shader = Shader::new(&runs, &voxels, NI, None);
             let mut asked = [false; NI];
             let mut from = next(10) as i64 - 5;
             for _ in 0..next(6) {

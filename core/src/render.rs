@@ -8,6 +8,7 @@
 #[cfg(target_arch = "x86_64")]
 use crate::classify::Voxel;
 use crate::classify::{ColorLanes, ColorTable};
+use crate::clip::Clip;
 use crate::composite::{self, FlatVoxels, Intermediate, Mode, OpacityTable, Rgba, SliceTables};
 use crate::depth::{DepthCue, DepthFrame};
 use crate::error::{need, prefix, Error};
@@ -36,6 +37,11 @@ pub struct Settings<'a> {
     pub shadows: bool,
     /// How voxels with a zero gradient enter a sample's colour.
     pub flat_voxels: FlatVoxels,
+    /// Clipping planes applied as the slices are composited ([`crate::clip`]), made for
+    /// the volume's grid; [`Clip::NONE`] keeps every voxel. Moving them costs nothing,
+    /// unlike planes applied as the volume is classified ([`Clip::apply`]), which
+    /// change the encoding and drop the voxels they cut from it.
+    pub clip: Clip,
 }
 
 /// Caller-owned buffers for [`render`].
@@ -137,6 +143,8 @@ pub struct Frame {
     pub ray_gain: Option<RayGain>,
     /// How flat voxels enter a sample's colour.
     pub flat_voxels: FlatVoxels,
+    /// The settings' clipping planes, their coefficients in the view's roles (i, j, k).
+    pub clip: Clip,
 }
 
 impl Frame {
@@ -249,6 +257,7 @@ impl Frame {
             (Some(c), Mode::Composite) => Some(DepthFrame::new(c, &view, grid.dims, grid.spacing)?),
             _ => None,
         };
+        let clip = settings.clip.permuted(|q| view.permute(q));
         Ok(Frame {
             ray_gain: view.perspective.as_ref().map(RayGain::new),
             shadow,
@@ -259,6 +268,7 @@ impl Frame {
             ert,
             mode: settings.mode,
             flat_voxels: settings.flat_voxels,
+            clip,
         })
     }
 
@@ -279,6 +289,7 @@ impl Frame {
             depth: self.depth.as_ref(),
             ray_gain: self.ray_gain.as_ref(),
             flat_voxels: self.flat_voxels,
+            clip: (!self.clip.is_empty()).then_some(&self.clip),
         }
     }
 }
@@ -590,7 +601,7 @@ fn band<S: SliceSource>(
                             true,
                             kern,
                         )?;
-                        shadow::accumulate_slice(alpha, slice, k, sf, srows)
+                        shadow::accumulate_slice(alpha, slice, k, sf, srows, tables.clip)
                     },
                 )??;
             }
@@ -863,6 +874,7 @@ mod tests {
             depth_cue: None,
             shadows: false,
             flat_voxels: Default::default(),
+            clip: crate::clip::Clip::NONE,
         }
     }
 
@@ -913,6 +925,7 @@ mod tests {
                     depth_cue: None,
                     shadows: false,
                     flat_voxels: Default::default(),
+                    clip: crate::clip::Clip::NONE,
                 };
                 let view = Factorization::new(&grid, &cam).unwrap();
                 let whole = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
@@ -934,6 +947,7 @@ mod tests {
                     shade0: None,
                     ray_gain: None,
                     flat_voxels: FlatVoxels::Blended,
+                    clip: None,
                 };
                 let [iw, ih] = view.intermediate;
                 let mut p2 = vec![[0u16; 4]; iw * ih];
@@ -985,6 +999,7 @@ mod tests {
             depth_cue,
             shadows,
             flat_voxels: Default::default(),
+            clip: crate::clip::Clip::NONE,
         };
         // (settings, supersampling, perspective field of view).
         let ways = [
@@ -1095,6 +1110,7 @@ mod tests {
             depth_cue: None,
             shadows,
             flat_voxels,
+            clip: Clip::NONE,
         };
         let render = |dense: &[Voxel], flat, shadows: bool, s: usize| -> Vec<[u8; 4]> {
             let store = encode_all(dense, &grid);
@@ -1165,6 +1181,7 @@ mod tests {
                 }),
                 shadows: false,
                 flat_voxels: Default::default(),
+                clip: crate::clip::Clip::NONE,
             };
             let frame = Frame::new(&grid, &cam, &settings, &mut shade, None).unwrap();
             let tables = frame.tables(&shade, None);

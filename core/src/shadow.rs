@@ -14,6 +14,7 @@
 //! image. Shadows are computed over the whole intermediate image in one band.
 
 use crate::classify::Grid;
+use crate::clip::{Clip, RowCut};
 use crate::composite::{MergedSpans, Spans};
 use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
@@ -117,11 +118,14 @@ pub const fn row_buffer_len(ni: usize) -> usize {
     2 * (ni + 2)
 }
 
+/// Fills `row` (voxel `i` at entry `i + 1`) with the opacity of row `runs`, `voxels`,
+/// cut by the clipping planes along it, if any, as the compositor cuts its colours:
+/// what the planes cut away casts no shadow.
 fn fill_alpha(
     row: &mut [u16],
-    runs: &[u8],
-    voxels: &[crate::classify::Voxel],
+    (runs, voxels): (&[u8], &[crate::classify::Voxel]),
     opacity: &[u16; 256],
+    cut: Option<RowCut>,
 ) {
     row.fill(0);
     let mut v = 0;
@@ -133,16 +137,22 @@ fn fill_alpha(
         }
         v += b - a;
     }
+    if let Some(c) = cut {
+        c.apply(row, (0, usize::MAX), |a, c| {
+            *a = ((*a as u32 * c + (1 << 15)) >> 16) as u16
+        });
+    }
 }
 
 /// Composites slice `k`'s opacity into the shadow buffer `alpha` (`frame.size`), sheared
-/// along the light.
+/// along the light, cut by the clipping planes `clip` (in the view's roles) if any.
 pub fn accumulate_slice(
     alpha: &mut [u16],
     slice: &RleSlice<'_>,
     k: usize,
     frame: &ShadowFrame,
     rows: &mut [u16],
+    clip: Option<&Clip>,
 ) -> Result<(), Error> {
     let (ni, nj) = (slice.ni, slice.nj);
     let [w, h] = frame.size;
@@ -160,12 +170,14 @@ pub fn accumulate_slice(
             empty
         }
     };
+    let cut = clip.and_then(|c| c.slice(k as i64));
+    let row_cut = |j: i64| cut.as_ref().map(|c| c.row(j, ni));
     let first = row_of(-1);
-    fill_alpha(top, first.0, first.1, &frame.opacity);
+    fill_alpha(top, first, &frame.opacity, row_cut(-1));
     let mut top_runs = first.0;
     for jt in -1..nj as i64 {
         let next = row_of(jt + 1);
-        fill_alpha(bot, next.0, next.1, &frame.opacity);
+        fill_alpha(bot, next, &frame.opacity, row_cut(jt + 1));
         let q = jt + ov.n as i64 + 1;
         if q >= 0 && (q as usize) < h {
             let line = alpha
@@ -244,7 +256,7 @@ mod tests {
         slice.validate().unwrap();
         let mut alpha = [0u16; 81];
         let mut rows = [0u16; 20];
-        accumulate_slice(&mut alpha, &slice, 7, &f, &mut rows).unwrap();
+        accumulate_slice(&mut alpha, &slice, 7, &f, &mut rows, None).unwrap();
         let look = ShadowLookup {
             alpha: &alpha,
             width: 9,

@@ -132,6 +132,7 @@ impl Look {
             depth_cue: None,
             shadows: false,
             flat_voxels: Default::default(),
+            clip: crate::clip::Clip::NONE,
         }
     }
 }

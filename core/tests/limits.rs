@@ -395,6 +395,7 @@ fn settings(color: &shearwarp_core::classify::ColorTable) -> Settings<'_> {
         depth_cue: None,
         shadows: false,
         flat_voxels: Default::default(),
+        clip: shearwarp_core::clip::Clip::NONE,
     }
 }
 

@@ -356,6 +356,7 @@ fn settings<'a>(v: &'a View, color: &'a ColorTable) -> Settings<'a> {
         depth_cue: v.depth,
         shadows: v.shadows,
         flat_voxels: Default::default(),
+        clip: shearwarp_core::clip::Clip::NONE,
     }
 }
 

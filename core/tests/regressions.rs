@@ -147,6 +147,7 @@ fn unlit(color: &[[u16; 3]; 256], depth_cue: Option<DepthCue>) -> Settings<'_> {
         depth_cue,
         shadows: false,
         flat_voxels: Default::default(),
+        clip: shearwarp_core::clip::Clip::NONE,
     }
 }
 

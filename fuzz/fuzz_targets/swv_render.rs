@@ -16,6 +16,8 @@
 use std::cell::RefCell;
 
 use libfuzzer_sys::fuzz_target;
+use shearwarp_core::classify::Grid;
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{self, FlatVoxels, Mode, Rgba};
 use shearwarp_core::depth::DepthCue;
 use shearwarp_core::io::SliceReader;
@@ -114,6 +116,7 @@ fn run(data: &[u8]) {
             false,
         ),
     ];
+    let clip = planes(data, &src.header().grid);
     BUFS.with(|b| {
         let b = &mut *b.borrow_mut();
         for (rx, ry, mode, depth_cue, shadows) in frames {
@@ -129,6 +132,7 @@ fn run(data: &[u8]) {
                 depth_cue,
                 shadows,
                 flat_voxels,
+                clip,
                 ..look.settings()
             };
             let cam = Camera {
@@ -165,7 +169,10 @@ fn run(data: &[u8]) {
         // parameter error (too strong a perspective) or a buffer error is fine; a frame
         // that renders must keep colour within alpha.
         let grid = shearwarp_core::source::SliceSource::grid(&src);
-        let settings = look.settings();
+        let settings = Settings {
+            clip,
+            ..look.settings()
+        };
         let cam = Camera {
             rotate_x: 25.0,
             rotate_y: 35.0 + (data.len() % 5) as f64 * 60.0,
@@ -186,6 +193,23 @@ fn run(data: &[u8]) {
             render_large(&mut src, b, &frame);
         }
     });
+}
+
+/// Up to two clipping planes, applied as the slices are composited, drawn from the
+/// input's last bytes (none for a third of the inputs), inverted for a fifth of them.
+fn planes(data: &[u8], grid: &Grid) -> Clip {
+    let tail = data.get(data.len().saturating_sub(8)..).unwrap_or_default();
+    let mut clip = Clip::NONE;
+    for c in tail.chunks_exact(4).take(data.len() % 3) {
+        let n = [c[0], c[1], c[2]].map(|b| b as f64 - 127.5);
+        let d = (c[3] as f64 - 128.0) / 4.0;
+        clip = clip.with_plane(grid, n, d).unwrap_or(clip);
+    }
+    if data.len() % 5 == 0 {
+        clip.inverted()
+    } else {
+        clip
+    }
 }
 
 /// Renders `frame` in the larger buffers; a frame that renders must keep colour within

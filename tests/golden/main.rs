@@ -140,6 +140,80 @@ fn clipping_planes_cut_the_volume_like_the_reference() {
     assert!(seen >= 3);
 }
 
+/// Clipping planes applied as the slices are composited (to a volume classified whole,
+/// so that a plane can move from frame to frame) cut as those baked into the
+/// classification do: the image is near the baked one and as near the reference, with
+/// shadows, depth cueing, supersampling and perspective too, and two threads give the
+/// same image as one.
+#[test]
+fn clipping_planes_applied_while_compositing_cut_as_classified_ones_do() {
+    let cued = shearwarp_core::depth::DepthCue {
+        front: 0.9,
+        density: 1.2,
+    };
+    let named = |n: &str| *CASES.iter().find(|c| c.name == n).expect("case");
+    let oblique = named("head64_clip_oblique");
+    let variants = [
+        oblique,
+        named("head64_clip_corner"),
+        named("head64_clip_oblique_mip"),
+        named("head64_clip_slab_persp45"),
+        cases::Case {
+            name: "head64_clip_face_shadows",
+            shadows: true,
+            ..named("head64_shadows_face")
+        },
+        cases::Case {
+            name: "head64_clip_oblique_cued",
+            depth_cue: Some(cued),
+            ..oblique
+        },
+        cases::Case {
+            name: "head64_clip_oblique_ss2",
+            supersample: 2,
+            ..oblique
+        },
+    ];
+    let review = std::env::var_os("SHEARWARP_REVIEW").map(std::path::PathBuf::from);
+    for mut case in variants {
+        if case.clip.is_empty() {
+            case.clip = oblique.clip;
+        }
+        let raw = cases::load(case.vol);
+        let live = cases::render_ours_clipped_live(&case, &raw, 1).expect("classic case");
+        let baked = cases::render_ours(&case, &raw);
+        let reference = cases::render_ref(&case, &raw);
+        let whole = cases::render_ref(&cases::Case { clip: &[], ..case }, &raw);
+        let near_baked = metrics::psnr_rgb8(&live, &baked);
+        let (live_ref, baked_ref) = (
+            metrics::psnr_rgb8(&live, &reference),
+            metrics::psnr_rgb8(&baked, &reference),
+        );
+        let live_whole = metrics::psnr_rgb8(&live, &whole);
+        println!(
+            "{}: {near_baked:.2} dB against the baked cut; against the reference \
+             {live_ref:.2} dB (baked {baked_ref:.2}, the uncut reference {live_whole:.2})",
+            case.name
+        );
+        if let Some(dir) = &review {
+            let n = case.size;
+            let mut both = Vec::with_capacity(3 * n * n);
+            for y in 0..n {
+                for img in [&live, &baked, &reference] {
+                    both.extend_from_slice(&img[y * n..(y + 1) * n]);
+                }
+            }
+            let path = dir.join(format!("{}.live.png", case.name));
+            metrics::save_png(&path, 3 * n, n, &both).expect("review image");
+        }
+        assert!(near_baked > 35.0, "{}: {near_baked:.2} dB", case.name);
+        assert!(live_ref > baked_ref - 1.0, "{}", case.name);
+        assert!(live_ref > live_whole + 6.0, "{}", case.name);
+        let two = cases::render_ours_clipped_live(&case, &raw, 2).expect("classic case");
+        assert!(two == live, "{}: two threads changed the image", case.name);
+    }
+}
+
 /// `case` cuts the volume as the reference does: it is nearer the reference with the
 /// cut than without by `margin` dB (so the cut is seen, not lost in the tolerance), and
 /// `keeps_all` (a cut that leaves every voxel) renders exactly as `uncut` does. On a
@@ -328,6 +402,7 @@ fn integrated_opacity(
         depth_cue: None,
         shadows: false,
         flat_voxels: Default::default(),
+        clip: shearwarp_core::clip::Clip::NONE,
     };
     let mut shade = ShadeTable::UNSHADED;
     let frame = Frame::new(&enc.grid, cam, &settings, &mut shade, None).unwrap();

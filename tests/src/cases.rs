@@ -806,6 +806,29 @@ pub fn render_ours_threads(case: &Case, raw: &RawVolume, threads: usize) -> Vec<
     render_encoded(case, &enc, threads, Isa::detect())
 }
 
+/// Renders a classic (RLE) case with `threads` threads, its clipping planes applied as
+/// the slices are composited ([`Renderer::set_clip`]) to the volume classified without
+/// them; `None` for a post-classified case (its planes are always applied so).
+pub fn render_ours_clipped_live(
+    case: &Case,
+    raw: &RawVolume,
+    threads: usize,
+) -> Option<Vec<[u8; 3]>> {
+    if case.post.is_some() {
+        return None;
+    }
+    let mut class = classification(case, raw.dims, raw.spacing);
+    let planes = std::mem::replace(&mut class.cut.clip, Clip::NONE);
+    let enc = scene::encode(raw, &class).expect("encode");
+    Some(render_encoded_clipped(
+        case,
+        &enc,
+        threads,
+        Isa::detect(),
+        planes,
+    ))
+}
+
 /// Renders a classic (RLE) case on one thread with the `isa` build of the compositing
 /// loop; `None` for a post-classified case (it has no such builds).
 pub fn render_ours_isa(case: &Case, raw: &RawVolume, isa: Isa) -> Option<Vec<[u8; 3]>> {
@@ -864,6 +887,17 @@ fn clip(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Clip {
 
 /// Renders a classic (RLE) case from an encoded volume with `threads` threads.
 fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize, isa: Isa) -> Vec<[u8; 3]> {
+    render_encoded_clipped(case, enc, threads, isa, Clip::NONE)
+}
+
+/// [`render_encoded`], cutting the slices by `clip` as they are composited.
+fn render_encoded_clipped(
+    case: &Case,
+    enc: &scene::Encoded,
+    threads: usize,
+    isa: Isa,
+    clip: Clip,
+) -> Vec<[u8; 3]> {
     let look = Look {
         mode: case.mode,
         color: scene::color_table(case.color, enc.range).expect("colour"),
@@ -877,6 +911,7 @@ fn render_encoded(case: &Case, enc: &scene::Encoded, threads: usize, isa: Isa) -
     r.set_isa(isa);
     r.set_supersample(case.supersample).expect("supersample");
     r.set_perspective(case.fov);
+    r.set_clip(clip);
     let mut src = enc.volume().expect("volume");
     let frame = r.render(&mut src, &cam, &look).expect("render");
     frame.iter().map(|p| [p[0], p[1], p[2]]).collect()

@@ -6,8 +6,11 @@
 //! row is never read, so [`Needed`] tells a row, from the opaque-pixel bitmaps of those
 //! two scanlines, which voxels to shade and whether to shade it at all.
 
-use super::{flat, row_buffer_len, FlatRule, Intermediate, Kernels, Rgba, Shading, SliceTables};
+use super::{
+    flat, row_buffer_len, FlatRule, Intermediate, Kernels, Mode, Rgba, Shading, SliceTables,
+};
 use crate::classify::Voxel;
+use crate::clip::RowCut;
 use crate::opaque;
 
 /// Non-transparent spans `[start, end)` of one scanline's runs; adjacent runs split at 255
@@ -250,6 +253,31 @@ impl<'b> Row<'b> {
             self.written += 1;
         } else {
             self.written = Row::UNKNOWN;
+        }
+    }
+
+    /// Cuts shaded voxels `from..to` of the row by the clipping planes along it
+    /// ([`RowCut::apply`]) for a frame in `mode`: in composite mode each colour is
+    /// scaled by its voxel's coverage, as the voxel's opacity is, premultiplied. A MIP
+    /// entry is the voxel's scalar, which opacity does not weigh: a voxel the planes
+    /// cover at all is kept whole, as a classified cut keeps every voxel left with some
+    /// opacity (the images are the same). Out of line:
+    /// rows the planes cross are few next to the voxels shaded, and the loops of frames
+    /// without planes stay as they were.
+    #[inline(never)]
+    pub(crate) fn cut(&mut self, cut: &RowCut, (from, to): (usize, usize), mode: Mode) {
+        match mode {
+            Mode::Composite => cut.apply(self.buf, (from, to), |e, c| {
+                *e = e.map(|x| ((x as u32 * c + (1 << 15)) >> 16) as u16)
+            }),
+            Mode::Mip => cut.apply(self.buf, (from, to), |_, _| {}),
+        }
+    }
+
+    /// [`Row::cut`] over every voxel the row holds.
+    pub(crate) fn cut_all(&mut self, cut: &RowCut, mode: Mode) {
+        if let Some((lo, hi)) = self.extent() {
+            self.cut(cut, (lo.saturating_sub(1), hi.saturating_sub(1)), mode);
         }
     }
 

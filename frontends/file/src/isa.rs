@@ -320,6 +320,7 @@ mod tests {
                 depth_cue,
                 shadows: false,
                 flat_voxels,
+                clip: shearwarp_core::clip::Clip::NONE,
             };
             let cam = Camera {
                 rotate_x: 21.0,

@@ -280,13 +280,20 @@ struct RenderOpts {
     /// points into. OFFSET moves the plane from the volume's centre along the normal,
     /// as a fraction of the volume's half-extent that way: 0 (the default) halves the
     /// volume, 1 keeps all of it, -1 none. Classified modes bake the planes into the
-    /// encoding; post/preint/iso apply them per frame.
+    /// encoding (a .swv, already encoded, is cut as it is composited); post/preint/iso
+    /// apply them per frame.
     #[arg(long, value_name = "NX,NY,NZ[:OFFSET]", allow_hyphen_values = true)]
     clip: Vec<String>,
     /// Inverse clipping: cut away the region behind every --clip plane (which they
     /// otherwise keep) and keep the rest, to take a wedge or a corner out of the volume.
     #[arg(long)]
     clip_invert: bool,
+    /// Cut a classified volume by the --clip planes as its slices are composited, as a
+    /// .swv is cut and as the desktop preview cuts (planes that move cost no encoding),
+    /// instead of baking them into the encoding (which drops what they cut, so frames
+    /// cost less). The images differ by rounding on the planes' one-voxel ramps.
+    #[arg(long, requires = "clip")]
+    clip_live: bool,
 }
 
 /// A bad command-line value or option combination (exit code 2).
@@ -375,6 +382,9 @@ struct Prepared {
     camera: Camera,
     /// How the frames take flat voxels (`--flat-voxels`, resolved for the volume).
     flat_voxels: FlatVoxels,
+    /// Clipping planes applied as the slices are composited: a `.swv`'s `--clip`
+    /// (a raw volume's are baked into its encoding instead, which drops what they cut).
+    clip: Clip,
 }
 
 fn default_opacity(range: (u16, u16), mode: ModeArg) -> Vec<(f64, f64)> {
@@ -417,6 +427,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    let mut live_clip = Clip::NONE;
     let (mut encoded, look) = if swvfile::is_swv(path) {
         if o.opacity.is_some()
             || o.gradient_opacity.is_some()
@@ -425,18 +436,20 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
             || o.tf.is_some()
             || o.window.is_some()
             || o.crop.is_some()
-            || !o.clip.is_empty()
-            || o.clip_invert
             || o.lod > 0
         {
             return Err(usage(format!(
                 "{}: opacity is baked into a .swv file; re-encode it with `shearwarp encode` \
-                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16/--crop/--clip \
+                 to change --opacity/--gradient-opacity/--preset/--tf/--window/--u16/--crop \
                  (or to render a --lod level)",
                 path.display()
             )));
         }
         let (enc, file_look) = swvfile::read_swv(path)?;
+        // Planes given for a .swv cut it as it is composited (any planes it was encoded
+        // with stay, so the two cuts add up).
+        let (dims, spacing) = (enc.grid.dims, enc.grid.spacing);
+        live_clip = clip_for(o, &clip_planes(o, dims, spacing)?, dims, spacing)?;
         let color = match &o.color {
             Some(s) => scene::color_table(&tfspec::parse_color(s)?, enc.range)?,
             None => file_look.color,
@@ -453,13 +466,19 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         let sp = out.spinner(format!("classifying and encoding {name}"));
         let crop = crop_of(o, raw.dims)?;
         let planes = clip_planes(o, raw.dims, raw.spacing)?;
+        // Planes baked into the encoding, for a grid of the volume's or a level's; live
+        // ones are made for the grid encoded, below.
+        let baked = |dims, spacing| match o.clip_live {
+            true => Ok::<_, Box<dyn Error>>(Clip::NONE),
+            false => clip_for(o, &planes, dims, spacing),
+        };
         let mut class = Classification {
             opacity: tf.opacity.clone(),
             gradient: tf.gradient.clone(),
             min_opacity: o.min_opacity,
             cut: scene::Cut {
                 crop,
-                clip: clip_for(o, &planes, raw.dims, raw.spacing)?,
+                clip: baked(raw.dims, raw.spacing)?,
             },
         };
         let enc = if o.lod > 0 {
@@ -476,11 +495,15 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
                 })?);
             }
             // The planes keep their place about the centre, which the level shares.
-            class.cut.clip = clip_for(o, &planes, level.dims, level.spacing)?;
+            class.cut.clip = baked(level.dims, level.spacing)?;
             scene::encode(&level, &class)?.as_level(&full)
         } else {
             scene::encode(&raw, &class)?
         };
+        if o.clip_live {
+            let g = &enc.grid;
+            live_clip = clip_for(o, &planes, g.dims, g.spacing)?;
+        }
         sp.finish_and_clear();
         let color = scene::color_table(&tf.color, enc.range)?;
         let lighting = tf.shading.then(|| cli_lighting(o)).transpose()?;
@@ -504,6 +527,7 @@ fn prepare(path: &Path, o: &RenderOpts, out: Out) -> Result<Prepared, Box<dyn Er
         look,
         camera,
         flat_voxels,
+        clip: live_clip,
     })
 }
 
@@ -1046,6 +1070,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
                 r.set_supersample(opts.supersample)?;
                 r.set_flat_voxels(p.flat_voxels);
                 r.set_perspective(opts.perspective()?);
+                r.set_clip(p.clip);
                 let r = std::cell::RefCell::new(r);
                 let (frames, ms) = render_out(
                     &o,
@@ -1225,6 +1250,13 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             opts,
         } => {
             let p = prepare(&volume, &opts, out)?;
+            if !p.clip.is_empty() {
+                return Err(usage(
+                    "encode bakes --clip planes into a raw volume's encoding; planes that cut \
+                     as the slices are composited (--clip-live, or --clip on a .swv) belong \
+                     to render and bench",
+                ));
+            }
             let look = swv::Look {
                 color: p.look.color,
                 lighting: p.look.lighting.clone(),
@@ -1259,6 +1291,7 @@ fn run(mut cli: Cli) -> Result<(), Box<dyn Error>> {
             r.set_supersample(opts.supersample)?;
             r.set_flat_voxels(p.flat_voxels);
             r.set_perspective(opts.perspective()?);
+            r.set_clip(p.clip);
             // One output buffer for every frame, as a viewer keeps its window's and as
             // `shearwarp-bench` times it, so that the allocator is not part of the figure.
             let mut frame = Vec::new();

@@ -6,6 +6,7 @@ use crate::isa::{self, Isa};
 use crate::scene::Look;
 use crate::steal::{Piece, Retire, Sharing};
 use shearwarp_core::classify::Grid;
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::{self, FlatVoxels, Intermediate, Rgba};
 use shearwarp_core::opaque;
 use shearwarp_core::render::{Frame, Settings};
@@ -215,6 +216,8 @@ pub struct Renderer {
     supersample: usize,
     flat_voxels: FlatVoxels,
     fov: Option<f64>,
+    /// Clipping planes applied as slices are composited ([`Renderer::set_clip`]).
+    clip: Clip,
     /// The other `threads - 1` workers, started once. Starting a thread took about 40 µs
     /// here, twice a frame; waking a parked worker took 2 µs right after its last job
     /// and 40–60 µs after a millisecond asleep.
@@ -268,6 +271,7 @@ impl Renderer {
             supersample: 1,
             flat_voxels: FlatVoxels::Blended,
             fov: None,
+            clip: Clip::NONE,
             pool,
             isa: Isa::detect(),
             times: FrameTimes::default(),
@@ -307,6 +311,13 @@ impl Renderer {
     /// projection with `None` (see [`shearwarp_core::view::Factorization::perspective`]).
     pub fn set_perspective(&mut self, fov: Option<f64>) {
         self.fov = fov;
+    }
+
+    /// Cuts every frame by clipping planes `clip`, made for the grid of the volumes
+    /// rendered, as their slices are composited ([`Settings::clip`]): planes that move
+    /// from frame to frame cost no encoding. [`Clip::NONE`] (the default) cuts nothing.
+    pub fn set_clip(&mut self, clip: Clip) {
+        self.clip = clip;
     }
 
     /// Number of compositing threads.
@@ -413,6 +424,7 @@ impl Renderer {
             depth_cue: look.depth_cue,
             shadows: look.shadows,
             flat_voxels: self.flat_voxels,
+            clip: self.clip,
         };
         let grid = source.grid();
         let shade0 = look.shadows.then_some(&mut *self.shade0);

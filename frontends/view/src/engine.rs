@@ -20,6 +20,7 @@ use crate::preset::{self, PRESETS};
 use crate::render::{self, Compositor, ImageMap};
 use crate::state::{self, ViewState};
 use shearwarp_core::classify::Grid;
+use shearwarp_core::clip::Clip;
 use shearwarp_core::composite::Mode;
 use shearwarp_core::rle::Axis;
 use shearwarp_core::shade::Lighting;
@@ -131,7 +132,9 @@ impl Scene {
     }
 
     /// The classification of `view` for a level of the volume (the full volume's grid,
-    /// or the preview's, which keeps its voxels centred in the full volume's box).
+    /// or the preview's, which keeps its voxels centred in the full volume's box). A
+    /// crop box is baked into it; clipping planes are not ([`draw`] cuts the slices by
+    /// them as they are composited), so that moving a plane re-encodes nothing.
     pub fn classification(&self, view: &ViewState, grid: &Grid) -> Result<Classification, Error> {
         let (full, dims) = (self.full.dims, grid.dims);
         let crop = view.cut.crop(full).and_then(|c| {
@@ -145,7 +148,7 @@ impl Scene {
             min_opacity: self.settings.min_opacity,
             cut: scene::Cut {
                 crop,
-                clip: view.cut.clip(&self.grid()?, grid)?,
+                clip: Clip::NONE,
             },
         })
     }
@@ -444,6 +447,7 @@ fn draw<S: shearwarp_core::source::SliceSource + Clone + Send>(
     let camera = scene.camera(view);
     let look = scene.look(view, range, true)?;
     comp.set_perspective(view.perspective.then_some(scene.settings.fov));
+    comp.set_clip(view.cut.clip(&scene.grid()?, &src.grid())?);
     let cancelled = || Error::Source {
         reason: render::CANCELLED,
     };

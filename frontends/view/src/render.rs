@@ -121,6 +121,12 @@ impl Compositor {
         self.renderer.set_flat_voxels(f);
     }
 
+    /// Cuts frames by clipping planes `clip` as their slices are composited (made for
+    /// the grid of the level rendered).
+    pub fn set_clip(&mut self, clip: shearwarp_core::clip::Clip) {
+        self.renderer.set_clip(clip);
+    }
+
     /// Renders perspective views with a `fov` (degrees) field of view, or parallel
     /// projection with `None` (the file frontend's `--projection perspective --fov`).
     pub fn set_perspective(&mut self, fov: Option<f64>) {

@@ -173,6 +173,8 @@ impl Cut {
             if inverse {
                 args.push("--clip-invert".into());
             }
+            // The preview cuts as it composites, so that a plane moves without encoding.
+            args.push("--clip-live".into());
             return Some(args.join(" "));
         }
         let c = self.crop(dims)?;
@@ -618,9 +620,9 @@ mod tests {
             Some("--crop 0:63,0:32,0:0"),
             Some("--crop 0:63,0:64,0:0"),
             // Seen from rotate-x −90 (looking along +y), the viewer is toward −y.
-            Some("--clip=-0,-1,0:0"),
+            Some("--clip=-0,-1,0:0 --clip-live"),
             // The corner toward it: x and z at or above the centre, y below.
-            Some("--clip=-1,0,0:0 --clip=0,1,0:0 --clip=0,0,-1:0 --clip-invert"),
+            Some("--clip=-1,0,0:0 --clip=0,1,0:0 --clip=0,0,-1:0 --clip-invert --clip-live"),
         ];
         assert_eq!(seen, want.map(|s| s.map(String::from)));
         // The plane through the centre facing −y keeps the voxels of larger y.
@@ -661,7 +663,10 @@ mod tests {
         assert_eq!(v.cut.spec(dims).unwrap(), "--crop 0:63,0:64,0:9");
         press(&mut v, ViewKey::Cut, 1);
         press(&mut v, ViewKey::CutMore, 3);
-        assert_eq!(v.cut.spec(dims).unwrap(), "--clip=-0,-1,0:-0.15");
+        assert_eq!(
+            v.cut.spec(dims).unwrap(),
+            "--clip=-0,-1,0:-0.15 --clip-live"
+        );
         assert_eq!(v.cut.describe().unwrap(), "plane at -0.15");
         // Placed on the full volume: 0.15 of its half-extent (32.5 cells along y) toward
         // larger y, whatever the grid it is applied to.
@@ -672,12 +677,13 @@ mod tests {
             .unwrap();
         assert_eq!(clip, want);
         press(&mut v, ViewKey::CutLess, 50);
-        assert_eq!(v.cut.spec(dims).unwrap(), "--clip=-0,-1,0:1");
+        assert_eq!(v.cut.spec(dims).unwrap(), "--clip=-0,-1,0:1 --clip-live");
         // The corner grows as F cuts more, from the centre.
         press(&mut v, ViewKey::Cut, 1);
         press(&mut v, ViewKey::CutLess, 1);
         press(&mut v, ViewKey::CutMore, 2);
-        let corner = "--clip=-1,0,0:0.1 --clip=0,1,0:0.1 --clip=0,0,-1:0.1 --clip-invert";
+        let corner =
+            "--clip=-1,0,0:0.1 --clip=0,1,0:0.1 --clip=0,0,-1:0.1 --clip-invert --clip-live";
         assert_eq!(v.cut.spec(dims).unwrap(), corner);
         assert_eq!(v.cut.describe().unwrap(), "corner out, +0.10");
         // Its clip takes out the voxels at x ≥ 31.5 − 3.2, y ≤ 32 + 3.25, z ≥ 4.5 − 0.5.

@@ -223,6 +223,7 @@ fn run() -> Result<(), Error> {
         })),
         shadows: black_box(true),
         flat_voxels: Default::default(),
+        clip: black_box(clip),
     };
     let mut pixels = [[0u16; 4]; N];
     let mut links = [0; N];
