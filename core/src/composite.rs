@@ -416,19 +416,38 @@ pub(crate) fn composite_slice_in(
     }
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let way = Way::of(tables, shadow, scale);
+    // Slices cut by clipping planes take a loop of their own, out of line, which asks
+    // the way on every run: the loops of slices without planes stay as they were (with
+    // the planes' bounds in them, the Colin27 head's unclipped frames took 6 % more
+    // instructions).
+    #[cfg(target_arch = "x86_64")]
+    if tables.clip.is_some() {
+        return composite_rows_cut(job, kern, way);
+    }
     #[cfg(target_arch = "x86_64")]
     if way.excludes_flat(tables) {
         return kern.composite_flat(job, way);
     }
     #[cfg(target_arch = "x86_64")]
     match way {
-        Way::Lit => composite_rows(job, kern, &Lit),
-        Way::Cued(scale) => composite_rows(job, kern, &Cued(scale)),
-        Way::Shadowed(s) => composite_rows(job, kern, &s),
-        Way::Mip => composite_rows(job, kern, &Mip),
+        Way::Lit => composite_rows::<_, false>(job, kern, &Lit),
+        Way::Cued(scale) => composite_rows::<_, false>(job, kern, &Cued(scale)),
+        Way::Shadowed(s) => composite_rows::<_, false>(job, kern, &s),
+        Way::Mip => composite_rows::<_, false>(job, kern, &Mip),
     }
     #[cfg(not(target_arch = "x86_64"))]
-    composite_rows(job, kern, &way)
+    composite_rows::<_, true>(job, kern, &way)
+}
+
+/// [`composite_rows`] for a slice cut by clipping planes, shaded `way`.
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+fn composite_rows_cut(
+    job: SliceJob<'_, '_>,
+    kern: &impl Kernels,
+    way: Way<'_, '_>,
+) -> Result<(), Error> {
+    composite_rows::<_, true>(job, kern, &way)
 }
 
 /// [`composite_rows`] for a slice shaded `way` with flat voxels excluded from samples'
@@ -446,11 +465,11 @@ pub(crate) fn composite_rows_excluding(
     way: Way<'_, '_>,
 ) -> Result<(), Error> {
     match way {
-        Way::Lit => composite_rows(job, kern, &ExcludingFlat(Lit)),
-        Way::Cued(scale) => composite_rows(job, kern, &ExcludingFlat(Cued(scale))),
-        Way::Shadowed(s) => composite_rows(job, kern, &ExcludingFlat(s)),
+        Way::Lit => composite_rows::<_, false>(job, kern, &ExcludingFlat(Lit)),
+        Way::Cued(scale) => composite_rows::<_, false>(job, kern, &ExcludingFlat(Cued(scale))),
+        Way::Shadowed(s) => composite_rows::<_, false>(job, kern, &ExcludingFlat(s)),
         // MIP has no shading, so no flat voxels to exclude.
-        Way::Mip => composite_rows(job, kern, &Mip),
+        Way::Mip => composite_rows::<_, false>(job, kern, &Mip),
     }
 }
 
@@ -465,9 +484,10 @@ pub(crate) fn composite_flat_portable(
     composite_rows_excluding(job, &Portable, way)
 }
 
-/// The scanline loop of [`composite_slice_in`] for one [`Shading`].
+/// The scanline loop of [`composite_slice_in`] for one [`Shading`], cutting each row
+/// by the tables' clipping planes if `CUT`.
 #[cfg_attr(target_arch = "x86_64", inline(always))]
-fn composite_rows<S: Shading>(
+fn composite_rows<S: Shading, const CUT: bool>(
     job: SliceJob<'_, '_>,
     kern: &impl Kernels,
     shading: &S,
@@ -518,13 +538,12 @@ fn composite_rows<S: Shading>(
     // Row j is read by scanlines j + n_v (as the bottom row) and j + n_v + 1 (top).
     // In MIP no pixel becomes opaque, so every voxel is needed.
     let skip_opaque_voxels = tables.mode == Mode::Composite;
-    // Clipping planes cut each row as it is shaded (a branch a row without them).
-    let cut = tables.clip.and_then(|c| c.slice(k as i64));
-    let cut_row = |row: &mut Row<'_>, j: i64| {
-        if let Some(c) = &cut {
-            row.cut_all(&c.row(j, ni), tables.mode);
-        }
-    };
+    // Clipping planes cut each row as it is shaded.
+    let cut = tables
+        .clip
+        .filter(|_| CUT)
+        .and_then(|c| c.slice(k as i64, [ni, nj]));
+    let row_cut = |j: i64| cut.as_ref().map(|c| c.row(j, ni));
     {
         let need = Needed::lines(img, jt_lo + ov.n as i64, ou.n as i64);
         let need = skip_opaque_voxels.then_some(&need);
@@ -533,10 +552,10 @@ fn composite_rows<S: Shading>(
             tables,
             jt_lo,
             need,
+            row_cut(jt_lo).as_ref(),
             kern,
             shading,
         );
-        cut_row(top, jt_lo);
     }
     // What open pixels read of the rows two rows ahead, by row index mod 4. A row whose
     // every voxel only closed pixels read is neither streamed into the cache nor walked:
@@ -629,10 +648,10 @@ fn composite_rows<S: Shading>(
                     tables,
                     jt + 1,
                     None,
+                    row_cut(jt + 1).as_ref(),
                     kern,
                     shading,
                 );
-                cut_row(bot, jt + 1);
             }
             Reach::Some => {
                 let need = Needed::lines(img, jt + 1 + ov.n as i64, ou.n as i64);
@@ -641,10 +660,10 @@ fn composite_rows<S: Shading>(
                     tables,
                     jt + 1,
                     Some(&need),
+                    row_cut(jt + 1).as_ref(),
                     kern,
                     shading,
                 );
-                cut_row(bot, jt + 1);
             }
         }
         let v = jt + ov.n as i64 + 1;
@@ -731,7 +750,7 @@ fn composite_slice_supersampled(
     let (mut top, mut bot) = (&mut r0, &mut r1);
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let shading = Way::of(tables, shadow, scale);
-    let cut = tables.clip.and_then(|c| c.slice(k as i64));
+    let cut = tables.clip.and_then(|c| c.slice(k as i64, [ni, nj]));
     let width = img.width;
     let row_of = |j: i64| slice.row(j);
     // Scanlines reading rows jt and jt + 1 composite something only for jt from the row
@@ -1808,7 +1827,7 @@ mod tests {
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut lazy_buf = [[1u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
+            eager.fill((&runs, &voxels, &[]), &t, 0, None, None, &Portable, &Lit);
             let mut lazy = Row::new(&mut lazy_buf, false);
             let place = (tu, ss, NI);
             fill_supersampled(

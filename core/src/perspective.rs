@@ -331,7 +331,7 @@ pub(crate) fn composite_slice_in(job: SliceJob<'_, '_>, kern: &impl Kernels) -> 
     // lit, or the scalar in MIP (perspective frames have neither shadows nor depth
     // cueing).
     let shading = Way::of(tables, None, ONE);
-    let cut = tables.clip.and_then(|c| c.slice(k as i64));
+    let cut = tables.clip.and_then(|c| c.slice(k as i64, [ni, nj]));
     let ring_buf = ring_buf.get_mut(..ring * width).ok_or(too_small)?;
     if !clean {
         ring_buf.fill([0; 4]);
@@ -789,7 +789,7 @@ mod tests {
                 crate::composite::random_scanline(NI, &mut |m| next(m as usize) as u32);
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
+            eager.fill((&runs, &voxels, &[]), &t, 0, None, None, &Portable, &Lit);
             let mut lazy_buf = [[3u16; 4]; NI + 2];
             let mut lazy = Row::new(&mut lazy_buf, false);
             let mut shader = Shader::new(&runs, &voxels, NI, None);

@@ -170,7 +170,7 @@ pub fn accumulate_slice(
             empty
         }
     };
-    let cut = clip.and_then(|c| c.slice(k as i64));
+    let cut = clip.and_then(|c| c.slice(k as i64, [ni, nj]));
     let row_cut = |j: i64| cut.as_ref().map(|c| c.row(j, ni));
     let first = row_of(-1);
     fill_alpha(top, first, &frame.opacity, row_cut(-1));

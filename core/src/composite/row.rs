@@ -274,10 +274,16 @@ impl<'b> Row<'b> {
         }
     }
 
-    /// [`Row::cut`] over every voxel the row holds.
+    /// [`Row::cut`] over every voxel the row holds. The row's extent then shrinks to
+    /// the voxels the planes keep, so that the scanlines reading it composite only
+    /// those (behind a cut, half a row of zeroes composited for nothing).
     pub(crate) fn cut_all(&mut self, cut: &RowCut, mode: Mode) {
         if let Some((lo, hi)) = self.extent() {
             self.cut(cut, (lo.saturating_sub(1), hi.saturating_sub(1)), mode);
+            if let Some((a, b)) = cut.kept() {
+                let (lo, hi) = (lo.max(a + 1), hi.min(b + 1));
+                self.dirty = if lo < hi { (lo, hi) } else { (0, 0) };
+            }
         }
     }
 
@@ -308,7 +314,10 @@ impl<'b> Row<'b> {
 
     /// `shading` shades the voxels of row `j` (see [`Shading`]). With `needed`, only
     /// voxels some non-opaque pixel will read are shaded (the others stay zero, and only
-    /// opaque pixels, which are never composited again, would read them).
+    /// opaque pixels, which are never composited again, would read them). With `cut`,
+    /// the clipping planes along the row: the voxels outside the range they keep are
+    /// not shaded (the loop bounds Lacroute designs them as, §7.5), and the rest are
+    /// cut ([`Row::cut_all`]).
     #[allow(clippy::too_many_arguments)]
     #[cfg_attr(target_arch = "x86_64", inline(always))]
     pub(crate) fn fill(
@@ -317,6 +326,7 @@ impl<'b> Row<'b> {
         t: &SliceTables<'_>,
         j: i64,
         needed: Option<&Needed<'_>>,
+        cut: Option<&RowCut>,
         k: &impl Kernels,
         shading: &impl Shading,
     ) {
@@ -324,12 +334,18 @@ impl<'b> Row<'b> {
         let mut v = 0usize;
         let mut lo = usize::MAX;
         let mut hi = 0;
+        let (first, last) = cut.and_then(RowCut::kept).unwrap_or((0, usize::MAX));
         // The last window of needed voxels computed: its first voxel and its bits
         // ([`Needed::voxels`]).
         let mut word = (usize::MAX / 2, 0u64);
-        for (a, b) in Spans::new(runs) {
+        for (a0, b) in Spans::new(runs) {
             let base = v;
-            v += b - a;
+            v += b - a0;
+            // The span's voxels the planes keep: voxel `a` at `voxels[base + a - a0]`.
+            let (a, b) = (a0.max(first), b.min(last));
+            if a >= b {
+                continue;
+            }
             match needed {
                 None => {
                     lo = lo.min(a + 1);
@@ -337,9 +353,10 @@ impl<'b> Row<'b> {
                     // Both in bounds for a validated slice and a buffer of
                     // `row_buffer_len` entries; a run past them is not shaded.
                     // `shade_run` shades as many voxels as `dst` holds.
-                    let (Some(dst), Some(src)) =
-                        (self.buf.get_mut(a + 1..b + 1), voxels.get(base..))
-                    else {
+                    let (Some(dst), Some(src)) = (
+                        self.buf.get_mut(a + 1..b + 1),
+                        voxels.get(base + (a - a0)..),
+                    ) else {
                         continue;
                     };
                     shading.shade_run(dst, src, a, t, j, k);
@@ -370,9 +387,10 @@ impl<'b> Row<'b> {
                             // zero, and zero taps leave a pixel as it is.
                             lo = lo.min(c + 1);
                             hi = d + 1;
-                            let (Some(dst), Some(src)) =
-                                (self.buf.get_mut(c + 1..d + 1), voxels.get(base + (c - a)..))
-                            else {
+                            let (Some(dst), Some(src)) = (
+                                self.buf.get_mut(c + 1..d + 1),
+                                voxels.get(base + (c - a0)..),
+                            ) else {
                                 continue;
                             };
                             shading.shade_run(dst, src, c, t, j, k);
@@ -385,6 +403,9 @@ impl<'b> Row<'b> {
         }
         if lo < hi {
             self.dirty = (lo, hi);
+        }
+        if let Some(c) = cut {
+            self.cut_all(c, t.mode);
         }
     }
 }
@@ -777,9 +798,17 @@ mod tests {
             let mut eager_buf = [[0u16; 4]; NI + 2];
             let mut lazy_buf = [[1u16; 4]; NI + 2];
             let mut eager = Row::new(&mut eager_buf, false);
-            eager.fill((&runs, &voxels, &[]), &t, 0, None, &Portable, &Lit);
+            eager.fill((&runs, &voxels, &[]), &t, 0, None, None, &Portable, &Lit);
             let mut lazy = Row::new(&mut lazy_buf, false);
-            lazy.fill((&runs, &voxels, &[]), &t, 0, Some(&need), &Portable, &Lit);
+            lazy.fill(
+                (&runs, &voxels, &[]),
+                &t,
+                0,
+                Some(&need),
+                None,
+                &Portable,
+                &Lit,
+            );
             let open = |v: i64, u: i64| -> bool {
                 (4..6).contains(&v)
                     && (0..W as i64).contains(&u)
