@@ -383,6 +383,16 @@ impl RowCut {
         (!self.inverse).then_some(self.outer)
     }
 
+    /// The voxels the planes do not drop, as two ranges in order (either may be
+    /// empty): the one range they keep, or, inverted, those before and after the hole.
+    pub fn kept_ranges(&self) -> [(usize, usize); 2] {
+        if self.inverse {
+            [(0, self.inner.0), (self.inner.1, usize::MAX)]
+        } else {
+            [self.outer, (0, 0)]
+        }
+    }
+
     /// The coverage of voxel `i` (Q16), as [`Clip::coverage`] gives it.
     pub fn coverage(&self, i: usize) -> u32 {
         let i = i as i64;

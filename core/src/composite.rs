@@ -417,11 +417,14 @@ pub(crate) fn composite_slice_in(
     let scale = tables.depth.map_or(ONE, |d| d.slice_factor(k));
     let way = Way::of(tables, shadow, scale);
     // Slices cut by clipping planes take a loop of their own, out of line, which asks
-    // the way on every run: the loops of slices without planes stay as they were (with
-    // the planes' bounds in them, the Colin27 head's unclipped frames took 6 % more
-    // instructions).
+    // the way on every run: the loops of slices without planes, or that the planes keep
+    // whole, stay as they were (with the planes' bounds in them, the Colin27 head's
+    // unclipped frames took 6 % more instructions).
     #[cfg(target_arch = "x86_64")]
-    if tables.clip.is_some() {
+    if tables
+        .clip
+        .is_some_and(|c| c.slice(k as i64, [ni, nj]).is_some())
+    {
         return composite_rows_cut(job, kern, way);
     }
     #[cfg(target_arch = "x86_64")]
