@@ -832,6 +832,22 @@ fn bad_inputs_exit_2_with_one_line() {
         "--clip-invert needs at least one --clip plane".into(),
     ));
     cases.push((
+        s(&["render", &head64(), "-o", &o, "--clip-live"]),
+        "the following required arguments were not provided: --clip".into(),
+    ));
+    cases.push((
+        s(&[
+            "encode",
+            &head64(),
+            "-o",
+            &o,
+            "--clip",
+            "1,0,0",
+            "--clip-live",
+        ]),
+        "encode bakes --clip planes into a raw volume's encoding".into(),
+    ));
+    cases.push((
         s(&["render", &swv, "-o", &o, "--crop", ":31,,"]),
         "whole.swv: opacity is baked into a .swv file".into(),
     ));
