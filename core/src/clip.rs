@@ -162,16 +162,6 @@ impl Clip {
         self.inverse
     }
 
-    /// Coverage from the least coverage over the planes: itself, or its complement
-    /// when inverted (whose ramp is the same voxel, seen from the other side).
-    fn kept(&self, least: i64) -> i64 {
-        if self.inverse {
-            Q16 - least
-        } else {
-            least
-        }
-    }
-
     fn planes(&self) -> &[Plane] {
         self.planes.get(..self.len).unwrap_or_default()
     }
@@ -197,9 +187,9 @@ impl Clip {
         for pl in self.planes() {
             let dot = pl.q[0] * p[0] + pl.q[1] * p[1] + pl.q[2] * p[2];
             let sigma = (dot >> frac) - pl.r;
-            cov = cov.min((Q16 / 2 - sigma).clamp(0, Q16));
+            cov = cov.min(plane_coverage(sigma));
         }
-        self.kept(cov) as u32
+        kept(self.inverse, cov) as u32
     }
 
     /// Scales the opacity of the voxels of z slices `slices` of a volume of `grid` by
@@ -229,10 +219,10 @@ impl Clip {
                 for v in row.iter_mut() {
                     let mut cov = Q16;
                     for (s, pl) in sigma.iter_mut().zip(self.planes()) {
-                        cov = cov.min((Q16 / 2 - *s).clamp(0, Q16));
+                        cov = cov.min(plane_coverage(*s));
                         *s += pl.q[0];
                     }
-                    let cov = self.kept(cov);
+                    let cov = kept(self.inverse, cov);
                     if cov < Q16 {
                         let a = (v.opacity as i64 * cov + Q16 / 2) >> 16;
                         v.opacity = a as u8;
@@ -398,10 +388,9 @@ impl RowCut {
         let i = i as i64;
         let mut least = Q16;
         for p in 0..self.len.min(MAX_PLANES) {
-            let sigma = self.sigma[p] + self.step[p] * i;
-            least = least.min((Q16 / 2 - sigma).clamp(0, Q16));
+            least = least.min(plane_coverage(self.sigma[p] + self.step[p] * i));
         }
-        (if self.inverse { Q16 - least } else { least }) as u32
+        kept(self.inverse, least) as u32
     }
 
     /// Cuts voxels `from..to` of the row in `entries`, voxel `i` at entry `i + 1` (the
@@ -447,6 +436,22 @@ impl RowCut {
                 }
             }
         }
+    }
+}
+
+/// One plane's coverage of a point at signed distance `sigma` from it (Q16):
+/// `clamp(½ − σ, 0, 1)`.
+fn plane_coverage(sigma: i64) -> i64 {
+    (Q16 / 2 - sigma).clamp(0, Q16)
+}
+
+/// Coverage from the least coverage over the planes: itself, or its complement when
+/// `inverse` (whose ramp is the same voxel, seen from the other side).
+fn kept(inverse: bool, least: i64) -> i64 {
+    if inverse {
+        Q16 - least
+    } else {
+        least
     }
 }
 

@@ -43,6 +43,7 @@ pub(crate) use shading::{Cued, ExcludingFlat, Lit, Mip};
 pub(crate) use shading::{FlatRule, Shading, Way};
 
 use crate::classify::{ColorLanes, Voxel};
+use crate::clip::SliceCut;
 use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
 use crate::opaque;
@@ -420,12 +421,10 @@ pub(crate) fn composite_slice_in(
     // the way on every run: the loops of slices without planes, or that the planes keep
     // whole, stay as they were (with the planes' bounds in them, the Colin27 head's
     // unclipped frames took 6 % more instructions).
+    let cut = tables.clip.and_then(|c| c.slice(k as i64, [ni, nj]));
     #[cfg(target_arch = "x86_64")]
-    if tables
-        .clip
-        .is_some_and(|c| c.slice(k as i64, [ni, nj]).is_some())
-    {
-        return composite_rows_cut(job, kern, way);
+    if let Some(cut) = &cut {
+        return composite_rows_cut(job, kern, way, cut);
     }
     #[cfg(target_arch = "x86_64")]
     if way.excludes_flat(tables) {
@@ -433,24 +432,25 @@ pub(crate) fn composite_slice_in(
     }
     #[cfg(target_arch = "x86_64")]
     match way {
-        Way::Lit => composite_rows::<_, false>(job, kern, &Lit),
-        Way::Cued(scale) => composite_rows::<_, false>(job, kern, &Cued(scale)),
-        Way::Shadowed(s) => composite_rows::<_, false>(job, kern, &s),
-        Way::Mip => composite_rows::<_, false>(job, kern, &Mip),
+        Way::Lit => composite_rows(job, kern, &Lit, None),
+        Way::Cued(scale) => composite_rows(job, kern, &Cued(scale), None),
+        Way::Shadowed(s) => composite_rows(job, kern, &s, None),
+        Way::Mip => composite_rows(job, kern, &Mip, None),
     }
     #[cfg(not(target_arch = "x86_64"))]
-    composite_rows::<_, true>(job, kern, &way)
+    composite_rows(job, kern, &way, cut.as_ref())
 }
 
-/// [`composite_rows`] for a slice cut by clipping planes, shaded `way`.
+/// [`composite_rows`] for a slice cut by clipping planes `cut`, shaded `way`.
 #[cfg(target_arch = "x86_64")]
 #[inline(never)]
 fn composite_rows_cut(
     job: SliceJob<'_, '_>,
     kern: &impl Kernels,
     way: Way<'_, '_>,
+    cut: &SliceCut,
 ) -> Result<(), Error> {
-    composite_rows::<_, true>(job, kern, &way)
+    composite_rows(job, kern, &way, Some(cut))
 }
 
 /// [`composite_rows`] for a slice shaded `way` with flat voxels excluded from samples'
@@ -468,11 +468,11 @@ pub(crate) fn composite_rows_excluding(
     way: Way<'_, '_>,
 ) -> Result<(), Error> {
     match way {
-        Way::Lit => composite_rows::<_, false>(job, kern, &ExcludingFlat(Lit)),
-        Way::Cued(scale) => composite_rows::<_, false>(job, kern, &ExcludingFlat(Cued(scale))),
-        Way::Shadowed(s) => composite_rows::<_, false>(job, kern, &ExcludingFlat(s)),
+        Way::Lit => composite_rows(job, kern, &ExcludingFlat(Lit), None),
+        Way::Cued(scale) => composite_rows(job, kern, &ExcludingFlat(Cued(scale)), None),
+        Way::Shadowed(s) => composite_rows(job, kern, &ExcludingFlat(s), None),
         // MIP has no shading, so no flat voxels to exclude.
-        Way::Mip => composite_rows::<_, false>(job, kern, &Mip),
+        Way::Mip => composite_rows(job, kern, &Mip, None),
     }
 }
 
@@ -488,12 +488,14 @@ pub(crate) fn composite_flat_portable(
 }
 
 /// The scanline loop of [`composite_slice_in`] for one [`Shading`], cutting each row
-/// by the tables' clipping planes if `CUT`.
+/// by the clipping planes over the slice, `cut`, if any (the callers that have none
+/// pass `None` itself, so that their inlined loops hold no cutting).
 #[cfg_attr(target_arch = "x86_64", inline(always))]
-fn composite_rows<S: Shading, const CUT: bool>(
+fn composite_rows<S: Shading>(
     job: SliceJob<'_, '_>,
     kern: &impl Kernels,
     shading: &S,
+    cut: Option<&SliceCut>,
 ) -> Result<(), Error> {
     let SliceJob {
         img,
@@ -542,11 +544,7 @@ fn composite_rows<S: Shading, const CUT: bool>(
     // In MIP no pixel becomes opaque, so every voxel is needed.
     let skip_opaque_voxels = tables.mode == Mode::Composite;
     // Clipping planes cut each row as it is shaded.
-    let cut = tables
-        .clip
-        .filter(|_| CUT)
-        .and_then(|c| c.slice(k as i64, [ni, nj]));
-    let row_cut = |j: i64| cut.as_ref().map(|c| c.row(j, ni));
+    let row_cut = |j: i64| cut.map(|c| c.row(j, ni));
     {
         let need = Needed::lines(img, jt_lo + ov.n as i64, ou.n as i64);
         let need = skip_opaque_voxels.then_some(&need);
