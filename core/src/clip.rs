@@ -47,12 +47,18 @@ const Q16: i64 = 1 << 16;
 /// the Q16 coefficients stay far inside `i64` (`4096` voxels × `2^16` × `2^16`).
 const MAX_ANISOTROPY: f64 = 65536.0;
 
+/// Thickest layer [`Clip::with_shaded_face`] takes, in voxels: beyond a few voxels
+/// the layer no longer reads as the cut's face but as a slab painted over the data.
+pub const MAX_FACE: f64 = 16.0;
+
 /// One half-space: signed distance `σ(p) = q·p / 2^frac − r` (Q16, units of the
-/// grid's smallest spacing) at index-space position `p`; kept where `σ ≤ 0`.
+/// grid's smallest spacing) at index-space position `p`; kept where `σ ≤ 0`. `code` is
+/// its normal's ([`crate::normal`]), in object space, for shading its face.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct Plane {
     q: [i64; 3],
     r: i64,
+    code: u16,
 }
 
 /// Up to [`MAX_PLANES`] clipping planes for one grid (a volume, or a level of one).
@@ -63,11 +69,17 @@ struct Plane {
 /// is what is cut away, so that a few planes take a wedge or a corner out of a volume
 /// and leave the rest of it around the hole as context (inverse clipping,
 /// Rezk-Salama 2001, §9.2).
+///
+/// With [`Clip::with_shaded_face`], the voxels in a thin layer along the cut are shaded
+/// as the cut's face, by the nearest plane's normal instead of their own gradient.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Clip {
     planes: [Plane; MAX_PLANES],
     len: usize,
     inverse: bool,
+    /// Thickness of the layer shaded as the face, Q16 units of the smallest spacing
+    /// beyond the ramp; 0 for none.
+    face: i64,
 }
 
 impl Default for Clip {
@@ -79,9 +91,14 @@ impl Default for Clip {
 impl Clip {
     /// No planes: every voxel kept.
     pub const NONE: Clip = Clip {
-        planes: [Plane { q: [0; 3], r: 0 }; MAX_PLANES],
+        planes: [Plane {
+            q: [0; 3],
+            r: 0,
+            code: 0,
+        }; MAX_PLANES],
         len: 0,
         inverse: false,
+        face: 0,
     };
 
     /// This clip and one more plane, for a volume of `grid`: the plane at signed
@@ -119,9 +136,78 @@ impl Clip {
         out.planes[self.len] = Plane {
             q: coef.map(|c| libm::round(c * Q16 as f64) as i64),
             r: libm::round(r) as i64,
+            // The gradients the classifier encodes are physical, as `n` is.
+            code: crate::normal::encode(
+                libm::round(n[0] * (1 << 20) as f64) as i64,
+                libm::round(n[1] * (1 << 20) as f64) as i64,
+                libm::round(n[2] * (1 << 20) as f64) as i64,
+            ),
         };
         out.len += 1;
         Ok(out)
+    }
+
+    /// This clip with the cut's face shaded as a surface: voxels within `thickness`
+    /// voxels (of the smallest spacing, `0..=`[`MAX_FACE`]) of the cut, on its kept
+    /// side, and those on its ramp, are shaded by the normal of the plane nearest them
+    /// rather than by their gradient; 0 shades them by their gradient, as without.
+    ///
+    /// Why: a cut exposes the inside of tissue, where the data is nearly flat and its
+    /// gradient is noise or nothing, so the face comes out mottled, or evenly bright
+    /// (flat voxels have no direction to be lit from) and hard to read as a plane.
+    /// Lacroute suggests a special shading at the cut (1995, §7.5); shading a layer by
+    /// the clipping surface's normal is Weiskopf, Engel and Ertl's (2003), which
+    /// Rezk-Salama's clipping chapter builds on. The face is then lit as the plane it
+    /// is, and still shows the classified colours of what it cuts.
+    pub fn with_shaded_face(self, thickness: f64) -> Result<Clip, Error> {
+        if !(0.0..=MAX_FACE).contains(&thickness) {
+            return Err(Error::BadParameter {
+                reason: "clip: face thickness is not between 0 and 16 voxels",
+            });
+        }
+        Ok(Clip {
+            face: libm::round(thickness * Q16 as f64) as i64,
+            ..self
+        })
+    }
+
+    /// Whether some voxels are shaded as the cut's face: planes, and a layer for them.
+    pub fn shades_face(&self) -> bool {
+        self.face > 0 && !self.is_empty()
+    }
+
+    /// The thickness of the layer shaded as the cut's face, in voxels; 0 for none.
+    pub fn face_thickness(&self) -> f64 {
+        self.face as f64 / Q16 as f64
+    }
+
+    /// Whether `sigma`, the largest σ over the planes at a voxel, puts the voxel in the
+    /// layer shaded as the face ([`Clip::with_shaded_face`]): on the ramp, or kept and
+    /// within the layer's thickness of it.
+    fn in_face(inverse: bool, face: i64, sigma: i64) -> bool {
+        face > 0
+            && if inverse {
+                sigma > -Q16 / 2 && sigma < Q16 / 2 + face
+            } else {
+                sigma < Q16 / 2 && sigma > -Q16 / 2 - face
+            }
+    }
+
+    /// The normal code a voxel at index-space position `p` (`frac` fractional bits, as
+    /// [`Clip::coverage`] takes) is shaded by: the nearest plane's, where it lies in the
+    /// layer shaded as the face, or `None`.
+    pub fn face_code(&self, p: [i64; 3], frac: u32) -> Option<u16> {
+        let frac = frac.min(16);
+        // The first plane of those with the largest σ, as the rows find it.
+        let mut near = (i64::MIN, 0);
+        for pl in self.planes() {
+            let dot = pl.q[0] * p[0] + pl.q[1] * p[1] + pl.q[2] * p[2];
+            let sigma = (dot >> frac) - pl.r;
+            if sigma > near.0 {
+                near = (sigma, pl.code);
+            }
+        }
+        Clip::in_face(self.inverse, self.face, near.0).then_some(near.1)
     }
 
     /// The distance from the centre of a volume of `grid` ([`Clip::with_plane`]'s) of the
@@ -217,18 +303,24 @@ impl Clip {
                     *s = pl.q[1] * y as i64 + pl.q[2] * z as i64 - pl.r;
                 }
                 for v in row.iter_mut() {
-                    let mut cov = Q16;
+                    // The largest σ (the least coverage) and its plane's normal.
+                    let mut near = (i64::MIN, 0);
                     for (s, pl) in sigma.iter_mut().zip(self.planes()) {
-                        cov = cov.min(plane_coverage(*s));
+                        if *s > near.0 {
+                            near = (*s, pl.code);
+                        }
                         *s += pl.q[0];
                     }
-                    let cov = kept(self.inverse, cov);
+                    let cov = kept(self.inverse, plane_coverage(near.0));
                     if cov < Q16 {
                         let a = (v.opacity as i64 * cov + Q16 / 2) >> 16;
                         v.opacity = a as u8;
                         if a == 0 {
                             v.normal = crate::normal::ZERO_GRADIENT;
                         }
+                    }
+                    if v.opacity > 0 && Clip::in_face(self.inverse, self.face, near.0) {
+                        v.normal = near.1;
                     }
                 }
             }
@@ -247,8 +339,10 @@ pub struct SliceCut {
     sigma: [i64; MAX_PLANES],
     qi: [i64; MAX_PLANES],
     qj: [i64; MAX_PLANES],
+    codes: [u16; MAX_PLANES],
     len: usize,
     inverse: bool,
+    face: i64,
 }
 
 /// The planes along one voxel row ([`SliceCut::row`]): the row's voxels split into
@@ -262,10 +356,14 @@ pub struct SliceCut {
 pub struct RowCut {
     sigma: [i64; MAX_PLANES],
     step: [i64; MAX_PLANES],
+    codes: [u16; MAX_PLANES],
     len: usize,
     inverse: bool,
     outer: (usize, usize),
     inner: (usize, usize),
+    /// The voxels in the layer shaded as the cut's face ([`Clip::with_shaded_face`]):
+    /// two ranges, either side of the deeper part of the row, either may be empty.
+    face: [(usize, usize); 2],
 }
 
 impl Clip {
@@ -280,13 +378,18 @@ impl Clip {
         }
         // σ is affine, so its extremes over the slice are at its corners. A plane
         // covers the whole slice where σ ≤ −½ at every corner, and none of it where
-        // σ ≥ ½ at every corner.
+        // σ ≥ ½ at every corner; a slice in the layer shaded as the face is cut all
+        // the same, so the bounds move out by the layer's thickness.
         let corners = [(0, 0), (ni, 0), (0, nj), (ni, nj)]
             .map(|(i, j)| [(i as i64 - 1).max(0), (j as i64 - 1).max(0), k]);
         let sigma =
             |pl: &Plane, p: [i64; 3]| pl.q[0] * p[0] + pl.q[1] * p[1] + pl.q[2] * p[2] - pl.r;
-        let whole = |pl: &Plane| corners.iter().all(|&p| sigma(pl, p) <= -Q16 / 2);
-        let none = |pl: &Plane| corners.iter().all(|&p| sigma(pl, p) >= Q16 / 2);
+        let whole = |pl: &Plane| {
+            corners
+                .iter()
+                .all(|&p| sigma(pl, p) <= -Q16 / 2 - self.face)
+        };
+        let none = |pl: &Plane| corners.iter().all(|&p| sigma(pl, p) >= Q16 / 2 + self.face);
         let keeps_all = if self.inverse {
             self.planes().iter().any(none)
         } else {
@@ -299,14 +402,21 @@ impl Clip {
             sigma: [0; MAX_PLANES],
             qi: [0; MAX_PLANES],
             qj: [0; MAX_PLANES],
+            codes: [0; MAX_PLANES],
             len: self.len,
             inverse: self.inverse,
+            face: self.face,
         };
-        let steps = cut.qi.iter_mut().zip(cut.qj.iter_mut());
-        for ((s, (qi, qj)), pl) in cut.sigma.iter_mut().zip(steps).zip(self.planes()) {
+        let steps = cut
+            .qi
+            .iter_mut()
+            .zip(cut.qj.iter_mut())
+            .zip(cut.codes.iter_mut());
+        for ((s, ((qi, qj), code)), pl) in cut.sigma.iter_mut().zip(steps).zip(self.planes()) {
             *s = pl.q[2] * k - pl.r;
             *qi = pl.q[0];
             *qj = pl.q[1];
+            *code = pl.code;
         }
         Some(cut)
     }
@@ -334,11 +444,21 @@ impl SliceCut {
         let mut out = RowCut {
             sigma: [0; MAX_PLANES],
             step: self.qi,
+            codes: self.codes,
             len: self.len,
             inverse: self.inverse,
             outer: (0, ni),
             inner: (0, ni),
+            face: [(0, 0); 2],
         };
+        // The face's layer lies between two levels of the largest σ: beyond the ramp
+        // by the layer's thickness, on the kept side (inside it, or inverted, outside).
+        let (deep, shallow) = match (self.face, self.inverse) {
+            (0, _) => (0, 0),
+            (f, false) => (-Q16 / 2 - f, Q16 / 2 - 1),
+            (f, true) => (-Q16 / 2, Q16 / 2 + f - 1),
+        };
+        let mut layer = [(0, ni); 2];
         let intersect = |a: (usize, usize), b: (usize, usize)| (a.0.max(b.0), a.1.min(b.1));
         let n = self.len.min(MAX_PLANES);
         for p in 0..n {
@@ -347,12 +467,27 @@ impl SliceCut {
             // Coverage clamp(½ − σ, 0, 1) is above 0 where σ < ½ and 1 where σ ≤ −½.
             out.outer = intersect(out.outer, below(s, self.qi[p], Q16 / 2 - 1, ni));
             out.inner = intersect(out.inner, below(s, self.qi[p], -Q16 / 2, ni));
+            if self.face > 0 {
+                layer[0] = intersect(layer[0], below(s, self.qi[p], shallow, ni));
+                layer[1] = intersect(layer[1], below(s, self.qi[p], deep, ni));
+            }
         }
         // Kept as a range inside `outer` (it is one: covering all implies some).
         let (o0, o1) = (out.outer.0, out.outer.1.max(out.outer.0));
         let (i0, i1) = (out.inner.0.clamp(o0, o1), out.inner.1.clamp(o0, o1));
         out.outer = (o0, o1);
         out.inner = if i0 < i1 { (i0, i1) } else { (o0, o0) };
+        if self.face > 0 {
+            // Where σ is below the shallow level less where it is below the deep one
+            // (an interval inside the first): up to two ranges.
+            let (a0, a1) = (layer[0].0, layer[0].1.max(layer[0].0));
+            let (b0, b1) = (layer[1].0.clamp(a0, a1), layer[1].1.clamp(a0, a1));
+            out.face = if b0 < b1 {
+                [(a0, b0), (b1, a1)]
+            } else {
+                [(a0, a1), (0, 0)]
+            };
+        }
         out
     }
 }
@@ -381,6 +516,34 @@ impl RowCut {
         } else {
             [self.outer, (0, 0)]
         }
+    }
+
+    /// The voxels of the row in the layer shaded as the cut's face, as two ranges
+    /// (either may be empty; both are without [`Clip::with_shaded_face`]).
+    pub fn face_ranges(&self) -> [(usize, usize); 2] {
+        self.face
+    }
+
+    /// Whether some voxels of the row lie in the layer shaded as the cut's face.
+    #[inline]
+    pub fn shades_face(&self) -> bool {
+        let [a, b] = self.face;
+        a.0 < a.1 || b.0 < b.1
+    }
+
+    /// The normal code voxel `i` of the row is shaded by where it lies in the layer
+    /// shaded as the face ([`RowCut::face_ranges`]): the nearest plane's, as
+    /// [`Clip::face_code`] gives it.
+    pub fn face_code(&self, i: usize) -> u16 {
+        let i = i as i64;
+        let mut near = (i64::MIN, 0);
+        for p in 0..self.len.min(MAX_PLANES) {
+            let s = self.sigma[p] + self.step[p] * i;
+            if s > near.0 {
+                near = (s, self.codes[p]);
+            }
+        }
+        near.1
     }
 
     /// The coverage of voxel `i` (Q16), as [`Clip::coverage`] gives it.
@@ -634,6 +797,11 @@ mod tests {
             if unit() < 0.5 {
                 clip = clip.inverted();
             }
+            if unit() < 0.5 {
+                // Now and then a whole or half voxel, which axis planes' σ meets exactly.
+                let face = [0.5, 1.0, 1.5, 2.0, unit() * 3.0][(unit() * 5.0) as usize];
+                clip = clip.with_shaded_face(face).unwrap();
+            }
             let roles = [[0, 1, 2], [1, 2, 0], [2, 0, 1]][(unit() * 3.0) as usize];
             let view = clip.permuted(|q| roles.map(|a| q[a]));
             let [ni, nj, nk] = roles.map(|a| dims[a]);
@@ -649,6 +817,7 @@ mod tests {
                     for (i, j) in (0..ni).flat_map(|i| (0..nj).map(move |j| (i, j))) {
                         let p = [i, j, k].map(|c| c as i64);
                         assert_eq!(view.coverage(p, 0), 1 << 16, "case {case}");
+                        assert_eq!(view.face_code(p, 0), None, "case {case}");
                     }
                     continue;
                 };
@@ -663,6 +832,12 @@ mod tests {
                         let p = [i, j, k].map(|c| c as i64);
                         let cov = view.coverage(p, 0);
                         assert_eq!(row.coverage(i), cov, "case {case}");
+                        let [f0, f1] = row.face_ranges();
+                        let in_face = (f0.0..f0.1).contains(&i) || (f1.0..f1.1).contains(&i);
+                        let face = in_face.then(|| row.face_code(i));
+                        assert_eq!(face, view.face_code(p, 0), "case {case}, voxel {i}");
+                        // The layer lies where the planes keep some of the voxel.
+                        assert!(face.is_none() || cov > 0, "case {case}, voxel {i}");
                         all &= cov == 1 << 16;
                         let want = if (from..to).contains(&i) {
                             7 * cov
@@ -677,6 +852,67 @@ mod tests {
             }
         }
         assert!(Clip::NONE.slice(3, [4, 4]).is_none());
+    }
+
+    #[test]
+    fn the_face_layer_is_the_ramp_and_the_given_thickness_behind_it() {
+        // The plane at x = 4 (σ = x − 4): the voxels shaded as its face, by thickness,
+        // kept below the plane or, inverted, above it. The layer's far bound is open.
+        let g = grid([9, 3, 3], [1.0; 3]);
+        let plane = Clip::NONE.with_plane(&g, [1.0, 0.0, 0.0], 0.0).unwrap();
+        let code = crate::normal::encode(1, 0, 0);
+        for (inverse, thickness, want) in [
+            (false, 1.0, 3..5),
+            (false, 1.5, 3..5),
+            (false, 2.0, 2..5),
+            (true, 1.0, 4..6),
+            (true, 1.5, 4..6),
+            (true, 2.0, 4..7),
+        ] {
+            let clip = if inverse { plane.inverted() } else { plane };
+            let clip = clip.with_shaded_face(thickness).unwrap();
+            assert_eq!(clip.face_thickness(), thickness);
+            let row = clip.slice(1, [9, 3]).unwrap().row(1, 9);
+            let layer: std::vec::Vec<usize> =
+                row.face_ranges().iter().flat_map(|r| r.0..r.1).collect();
+            assert_eq!(layer, want.clone().collect::<std::vec::Vec<_>>());
+            for x in 0..9 {
+                let face = clip.face_code([x, 1, 1], 0);
+                assert_eq!(
+                    face,
+                    want.contains(&(x as usize)).then_some(code),
+                    "{inverse} {x}"
+                );
+                assert_eq!(row.face_code(x as usize), code);
+            }
+            // Classified, the layer's voxels take the plane's normal; the others keep
+            // theirs, and the voxels cut away lose theirs.
+            let mut v = std::vec![Voxel { opacity: 200, scalar: 9, normal: 7 }; 9 * 3 * 3];
+            clip.apply(&g, 0..3, &mut v).unwrap();
+            for (x, v) in v.iter().take(9).enumerate() {
+                let kept = if inverse { x >= 4 } else { x <= 4 };
+                let want = match () {
+                    _ if want.contains(&x) => code,
+                    _ if kept => 7,
+                    _ => ZERO_GRADIENT,
+                };
+                assert_eq!(v.normal, want, "{inverse} {x}");
+            }
+        }
+        // No layer without a thickness, and none of an absurd one.
+        assert_eq!(plane.face_code([4, 1, 1], 0), None);
+        assert_eq!(
+            plane.slice(1, [9, 3]).unwrap().row(1, 9).face_ranges(),
+            [(0, 0); 2]
+        );
+        for bad in [-0.5, 16.5, f64::NAN, f64::INFINITY] {
+            assert!(plane.with_shaded_face(bad).is_err());
+        }
+        // A slice the planes keep whole but the layer reaches is cut all the same.
+        let far = Clip::NONE.with_plane(&g, [0.0, 0.0, 1.0], 0.0).unwrap();
+        assert!(far.slice(2, [9, 3]).is_some() && far.slice(0, [9, 3]).is_none());
+        let far = far.with_shaded_face(1.0).unwrap();
+        assert!(far.slice(0, [9, 3]).is_some());
     }
 
     #[test]

@@ -43,7 +43,7 @@ pub(crate) use shading::{Cued, ExcludingFlat, Lit, Mip};
 pub(crate) use shading::{FlatRule, Shading, Way};
 
 use crate::classify::{ColorLanes, Voxel};
-use crate::clip::SliceCut;
+use crate::clip::{RowCut, SliceCut};
 use crate::error::{need, Error};
 use crate::fixed::{self, ONE};
 use crate::opaque;
@@ -776,10 +776,8 @@ fn composite_slice_supersampled(
             let next = group_end(end..band_end, jt + 1, ss, tv);
             let fill = |row: &mut Row<'_>, r, j, vs| {
                 let place = (tu, ss, ni);
-                fill_supersampled(row, r, j, img, vs, place, tables, kern, &shading);
-                if let Some(c) = &cut {
-                    row.cut_all(&c.row(j, ni), tables.mode);
-                }
+                let cut = cut.as_ref().map(|c| c.row(j, ni));
+                fill_supersampled(row, r, j, img, vs, place, cut, tables, kern, &shading);
             };
             if jt == held + 1 {
                 core::mem::swap(&mut top, &mut bot);
@@ -1004,7 +1002,8 @@ fn span_pixels(a: usize, b: usize, tu: i64, ss: i64) -> (i64, i64) {
 
 /// Shades row `j` (its runs and voxels) of a supersampled slice for the scanlines `vs`
 /// that read it: in composite mode only the voxels their open pixels read
-/// ([`supersampled_needs`]), in MIP every voxel. Out of line, as is [`group_end`]:
+/// ([`supersampled_needs`]), in MIP every voxel; then cuts it by the clipping planes
+/// along it, `cut`, if any. Out of line, as is [`group_end`]:
 /// with both inlined, the pixel loop beside them compiled to 6 % more instructions a
 /// frame (spheres256 at 512², 2×2).
 #[allow(clippy::too_many_arguments)]
@@ -1016,6 +1015,7 @@ fn fill_supersampled(
     img: &Intermediate<'_>,
     vs: core::ops::Range<usize>,
     place: (i64, i64, usize),
+    cut: Option<RowCut>,
     tables: &SliceTables<'_>,
     kern: &impl Kernels,
     shading: &impl Shading,
@@ -1027,7 +1027,20 @@ fn fill_supersampled(
     // well, the Cortex-M3 firmware's code was 2.8 KB larger.
     let all = [(0, usize::MAX)];
     let needed = if lazy { &needed[..] } else { &all[..] };
-    row.fill_in(runs, voxels, tables, j, needed, kern, shading);
+    let face = cut.filter(|c| c.shades_face() && tables.mode != Mode::Mip);
+    row.fill_in(
+        runs,
+        voxels,
+        tables,
+        j,
+        needed,
+        face.as_ref(),
+        kern,
+        shading,
+    );
+    if let Some(c) = &cut {
+        row.cut_all(c, tables.mode);
+    }
 }
 
 /// Voxel ranges a supersampled row pair is shaded in: sorted, disjoint, `[start, end)`.
@@ -1838,6 +1851,7 @@ mod tests {
                 &img,
                 vs.clone(),
                 place,
+                None,
                 &t,
                 &Portable,
                 &Lit,

@@ -650,6 +650,9 @@ impl<'r> Shader<'r> {
             let src = self.voxels.get(base + (x - a)..).unwrap_or_default();
             row.shade(src, (x, y), t, j, k, shading);
             if let Some(c) = &self.cut {
+                if c.shades_face() {
+                    row.shade_face_in(c, src, (x, y), t, j, k, shading);
+                }
                 row.cut(c, (x, y), t.mode);
             }
             self.done = y;

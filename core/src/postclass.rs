@@ -240,7 +240,19 @@ struct Sample {
 }
 
 #[inline(always)]
-fn sample(vol: &Dense<'_>, shade: &ShadeTable, i: i64, j: i64, k: usize, w: &[u32; 4]) -> Sample {
+/// With `face`, the clipping planes (in the view's roles) whose face is shaded as a
+/// surface: a tap in its layer is shaded by the plane's normal, as a classified
+/// volume's voxel is ([`Clip::with_shaded_face`]).
+#[allow(clippy::too_many_arguments)]
+fn sample(
+    vol: &Dense<'_>,
+    shade: &ShadeTable,
+    i: i64,
+    j: i64,
+    k: usize,
+    w: &[u32; 4],
+    face: Option<&Clip>,
+) -> Sample {
     let taps = [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)];
     let mut s = 0u32;
     let mut d = [0u32; 3];
@@ -251,7 +263,10 @@ fn sample(vol: &Dense<'_>, shade: &ShadeTable, i: i64, j: i64, k: usize, w: &[u3
         }
         if let Some(v) = vol.at(ti, tj, k) {
             s += wt * v.scalar as u32;
-            let e = shade.entry(v.normal);
+            let normal = face
+                .and_then(|c| c.face_code([ti, tj, k as i64], 0))
+                .unwrap_or(v.normal);
+            let e = shade.entry(normal);
             let (dd, ss) = (e.diffuse, e.specular);
             for c in 0..3 {
                 d[c] += wt * dd[c] as u32;
@@ -450,6 +465,9 @@ fn composite_band_clipped<const CLIPPED: bool>(
         });
     }
     let (ert, iso_q8, corr) = (frame.ert, frame.iso_q8, &frame.corr);
+    // An isosurface ends at the cut rather than filling it: no face to shade there.
+    let surface = matches!(frame.mode, PostMode::Isosurface(_));
+    let face = (CLIPPED && !surface && frame.clip.shades_face()).then_some(&frame.clip);
     let (row0, rows) = (img.first_row(), img.rows());
     let [iw, _] = view.intermediate;
     let ostride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
@@ -554,7 +572,7 @@ fn composite_band_clipped<const CLIPPED: bool>(
                         u += 1;
                         continue;
                     }
-                    let f = sample(&vol, frame.shade, il, jt, kf, &wf);
+                    let f = sample(&vol, frame.shade, il, jt, kf, &wf, face);
                     let Some(px) = pixels.get_mut(u) else {
                         break;
                     };
@@ -568,7 +586,7 @@ fn composite_band_clipped<const CLIPPED: bool>(
                         }
                         PostMode::PreIntegrated => {
                             let ilb = u as i64 - bu.n as i64 - 1;
-                            let b = sample(&vol, frame.shade, ilb, jb, kb, &wb);
+                            let b = sample(&vol, frame.shade, ilb, jb, kb, &wb, face);
                             let fi = ((f.s + 128) >> 8).min(255) as usize;
                             let bi_ = ((b.s + 128) >> 8).min(255) as usize;
                             let e = frame
@@ -587,7 +605,7 @@ fn composite_band_clipped<const CLIPPED: bool>(
                         }
                         PostMode::Isosurface(_) => {
                             let ilb = u as i64 - bu.n as i64 - 1;
-                            let b = sample(&vol, frame.shade, ilb, jb, kb, &wb);
+                            let b = sample(&vol, frame.shade, ilb, jb, kb, &wb, face);
                             let (lo, hi) = (f.s.min(b.s), f.s.max(b.s));
                             if iso_q8 < lo || iso_q8 > hi || lo == hi {
                                 u += 1;

@@ -71,6 +71,8 @@ pub struct Case {
     pub clip: &'static [([f64; 3], f64)],
     /// Inverse clipping ([`Clip::inverted`]).
     pub clip_inverse: bool,
+    /// Thickness of the layer shaded as the cut's face ([`Clip::with_shaded_face`]).
+    pub clip_face: f64,
 }
 
 /// The lighting a case uses.
@@ -133,6 +135,7 @@ macro_rules! case {
             crop: None,
             clip: &[],
             clip_inverse: false,
+            clip_face: 0.0,
         }
     };
 }
@@ -472,6 +475,26 @@ pub const CASES: &[Case] = &[
         clip: CORNER,
         clip_inverse: true,
         post: Some(PostMode::PostClassified),
+        ..HEAD_CLIP
+    },
+    // The cut's face shaded as a surface, by the planes' normals over a layer two
+    // voxels deep: the oblique cut classified and post-classified, and the corner.
+    Case {
+        name: "head64_clip_oblique_face",
+        clip_face: 2.0,
+        ..HEAD_CLIP
+    },
+    Case {
+        name: "head64_clip_oblique_face_post",
+        clip_face: 2.0,
+        post: Some(PostMode::PostClassified),
+        ..HEAD_CLIP
+    },
+    Case {
+        name: "head64_clip_corner_face",
+        clip: CORNER,
+        clip_inverse: true,
+        clip_face: 2.0,
         ..HEAD_CLIP
     },
     // A maximum intensity projection of the cut head: the brightest voxel along each
@@ -878,6 +901,7 @@ fn clip(case: &Case, dims: [usize; 3], spacing: [f64; 3]) -> Clip {
     let clip = case.clip.iter().fold(Clip::NONE, |c, &(n, d)| {
         c.with_plane(&grid, n, d).expect("clipping plane")
     });
+    let clip = clip.with_shaded_face(case.clip_face).expect("face");
     if case.clip_inverse {
         clip.inverted()
     } else {
@@ -971,6 +995,7 @@ pub fn render_ref(case: &Case, raw: &RawVolume) -> Vec<[u8; 3]> {
         crop: case.crop,
         clip: case.clip.to_vec(),
         clip_inverse: case.clip_inverse,
+        clip_face: case.clip_face,
     };
     let img = reference::render_reference(&vol, &tf, case.shading.then_some(&shading), mode, &view);
     metrics::to_rgb8(&img)

@@ -68,6 +68,11 @@ pub struct RefView {
     /// Rays then skip the samples in it (the region is convex, so that is one interval
     /// of each ray, hard-edged to the step).
     pub clip_inverse: bool,
+    /// Thickness, in voxels of the smallest spacing, of the layer along the cut shaded
+    /// as its face: samples within it of the nearest plane (on the kept side, or as
+    /// far into the part cut away as the renderer's half-voxel ramp reaches) are lit by
+    /// that plane's normal instead of the gradient. 0 for none.
+    pub clip_face: f64,
 }
 
 impl RefVolume {
@@ -250,6 +255,9 @@ struct Ctx<'a> {
     planes: Vec<([f64; 3], f64)>,
     /// The planes cut away the region they would keep ([`RefView::clip_inverse`]).
     inverse: bool,
+    /// [`RefView::clip_face`] in physical units, and the smallest spacing.
+    face: f64,
+    smin: f64,
 }
 
 impl Ctx<'_> {
@@ -312,6 +320,29 @@ impl Ctx<'_> {
         } else {
             self.planes.iter().any(|&(a, b)| dot(a, p) > b)
         }
+    }
+
+    /// The normal (physical) a sample at index-space point `p` is shaded by when it
+    /// lies in the layer shaded as the cut's face ([`RefView::clip_face`]): the
+    /// nearest plane's, the one farthest out. Bounds as the renderer's, in distances
+    /// from the plane: −½ − face to ½ voxel kept below it, or, inverted, −½ to ½ + face.
+    fn face_normal(&self, p: [f64; 3]) -> Option<[f64; 3]> {
+        if self.face <= 0.0 {
+            return None;
+        }
+        let (sigma, a) = self
+            .planes
+            .iter()
+            .map(|&(a, b)| (dot(a, p) - b, a))
+            .max_by(|x, y| x.0.total_cmp(&y.0))?;
+        let h = 0.5 * self.smin;
+        let inside = if self.inverse {
+            sigma > -h && sigma < h + self.face
+        } else {
+            sigma < h && sigma > -h - self.face
+        };
+        let s = self.vol.spacing;
+        inside.then(|| [a[0] / s[0], a[1] / s[1], a[2] / s[2]])
     }
 
     /// Whether a ray's sample at `p` is cut away by inverse clipping (the span already
@@ -509,7 +540,10 @@ impl Ctx<'_> {
                     let a_s = 1.0 - (1.0 - a).powf(alpha_exp);
                     let mut col = lookup(&self.color, v);
                     if let Some(sh) = self.shading {
-                        col = self.shade(sh, col, self.gradient(&c), self.shadow_at(&c));
+                        let g = self
+                            .face_normal(point(k))
+                            .unwrap_or_else(|| self.gradient(&c));
+                        col = self.shade(sh, col, g, self.shadow_at(&c));
                     }
                     if let Some((front, density, lo, hi)) = self.depth_cue {
                         let d = if hi > lo {
@@ -626,6 +660,8 @@ pub fn render_reference(
             })
             .collect(),
         inverse: view.clip_inverse,
+        face: view.clip_face * smin,
+        smin,
         perspective: view.fov.map(|fov| {
             let half = fov.to_radians() / 2.0;
             (0.5 * diag / half.sin(), 0.5 * w.min(h) as f64 / half.tan())
@@ -709,6 +745,7 @@ mod tests {
             crop: None,
             clip: Vec::new(),
             clip_inverse: false,
+            clip_face: 0.0,
         }
     }
 

@@ -96,6 +96,13 @@ pub(crate) fn copy(words: &mut [Rgba], at: usize, table: &[Rgba], n: usize) -> b
     any != 0
 }
 
+/// Clears bit `pos` of `words` (if they hold it).
+pub(crate) fn clear(words: &mut [Rgba], pos: usize) {
+    if let Some(w) = words.get_mut(pos / 64) {
+        *w = bytemuck::cast(load(w) & !(1u64 << (pos % 64)));
+    }
+}
+
 /// Bit `pos` of `words`.
 #[inline(always)]
 pub(crate) fn bit(words: &[Rgba], pos: usize) -> bool {

@@ -311,6 +311,7 @@ fn reference_image(
             crop: None,
             clip: Vec::new(),
             clip_inverse: false,
+            clip_face: 0.0,
         },
     );
     let img = metrics::to_rgb8(&img);
