@@ -123,6 +123,10 @@ fuzz_target!(|data: &[u8]| {
     if b.u8() & 1 == 1 {
         clip = clip.inverted();
     }
+    // A layer along the cut lit as its face, of any thickness (refused outside 0..=16).
+    clip = clip
+        .with_shaded_face(b.f64_or(|x| x as f64 / 8.0))
+        .unwrap_or(clip);
     // The voxels: what is left of the input, repeated.
     let rest = if b.0.is_empty() { &[0u8][..] } else { b.0 };
     let n = grid.voxel_count();

@@ -196,7 +196,8 @@ fn run(data: &[u8]) {
 }
 
 /// Up to two clipping planes, applied as the slices are composited, drawn from the
-/// input's last bytes (none for a third of the inputs), inverted for a fifth of them.
+/// input's last bytes (none for a third of the inputs), inverted for a fifth of them,
+/// their face lit over a layer of 0 to 3 voxels (by the input's length).
 fn planes(data: &[u8], grid: &Grid) -> Clip {
     let tail = data.get(data.len().saturating_sub(8)..).unwrap_or_default();
     let mut clip = Clip::NONE;
@@ -205,6 +206,8 @@ fn planes(data: &[u8], grid: &Grid) -> Clip {
         let d = (c[3] as f64 - 128.0) / 4.0;
         clip = clip.with_plane(grid, n, d).unwrap_or(clip);
     }
+    let face = (data.len() % 7) as f64 / 2.0;
+    let clip = clip.with_shaded_face(face).unwrap_or(clip);
     if data.len() % 5 == 0 {
         clip.inverted()
     } else {

@@ -219,6 +219,25 @@ fn clipping_planes_from_the_command_line() {
     );
     let level = run(&["--lod", "1", "--clip", "0,1,1"], "lod");
     assert!(level != run(&["--lod", "1"], "lod-plain"));
+    // `--clip-face`: the cut's face lit by the plane changes the picture, classified
+    // and per sample; on a .swv cut live, as the baked planes light it, to the bit
+    // (an axis plane between voxels), inverted or not.
+    for mode in ["composite", "post"] {
+        let cut = [&["--mode", mode][..], &x].concat();
+        let lit = run(&[&cut[..], &["--clip-face", "2"]].concat(), "face");
+        assert!(lit != run(&cut, "face-plain"), "{mode}: the face is lit");
+    }
+    for extra in [&[][..], &["--clip-invert"]] {
+        let lit = [&x[..], &["--clip-face", "1.5"], extra].concat();
+        let live = render(
+            &[&[whole.as_str()][..], &lit].concat(),
+            &t.p("face-live.png"),
+        );
+        assert!(
+            live == run(&lit, "face-baked"),
+            "a lit face cut live {extra:?}"
+        );
+    }
 }
 
 #[test]
@@ -834,6 +853,23 @@ fn bad_inputs_exit_2_with_one_line() {
     cases.push((
         s(&["render", &head64(), "-o", &o, "--clip-live"]),
         "the following required arguments were not provided: --clip".into(),
+    ));
+    cases.push((
+        s(&["render", &head64(), "-o", &o, "--clip-face", "2"]),
+        "the following required arguments were not provided: --clip".into(),
+    ));
+    cases.push((
+        s(&[
+            "render",
+            &head64(),
+            "-o",
+            &o,
+            "--clip",
+            "1,0,0",
+            "--clip-face",
+            "17",
+        ]),
+        "--clip-face 17: the face's thickness is 0 to 16 voxels".into(),
     ));
     cases.push((
         s(&[

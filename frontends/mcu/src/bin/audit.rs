@@ -129,6 +129,7 @@ fn run() -> Result<(), Error> {
     black_box(crop.contains(black_box([0, 0, 0])));
     // Clipping planes over the same records.
     let clip = Clip::NONE.with_plane(&grid, black_box([1.0, 0.5, 0.0]), black_box(0.5))?;
+    let clip = clip.with_shaded_face(black_box(2.0))?;
     let clip = if black_box(true) {
         clip.inverted()
     } else {
